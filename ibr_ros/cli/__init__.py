@@ -1,0 +1,1 @@
+"""The ``ibr`` command line tool: one module per subcommand group, each with ``register()``."""

@@ -1,0 +1,8 @@
+"""Executables of the package: one table read by setup.py and by the ``lib/ibr_ros`` launchers.
+
+Kept free of imports so that setup.py can read it without the package's dependencies.
+"""
+
+CONSOLE_SCRIPTS: dict[str, str] = {
+    'ibr': 'ibr_ros.cli.main:main',
+}
