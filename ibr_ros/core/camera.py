@@ -131,16 +131,9 @@ class PinholeCamera:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, PinholeCamera):
             return NotImplemented
+        keys = ('width', 'height', 'distortion_model', 'binning_x', 'binning_y', 'roi')
         return (
-            (self.width, self.height, self.distortion_model, self.binning_x, self.binning_y, self.roi)
-            == (
-                other.width,
-                other.height,
-                other.distortion_model,
-                other.binning_x,
-                other.binning_y,
-                other.roi,
-            )
+            all(getattr(self, k) == getattr(other, k) for k in keys)
             and np.array_equal(self.k, other.k)
             and np.array_equal(self.d, other.d)
             and np.array_equal(self.r, other.r)
