@@ -1,0 +1,1 @@
+"""File formats outside ROS: photo metadata."""
