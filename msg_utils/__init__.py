@@ -1,0 +1,84 @@
+"""ROS messages <-> numpy, for rclpy message classes and rosbags dataclasses alike.
+
+Functions that build messages take ``flavor='rclpy' | 'rosbags'``; functions that read them
+accept either. Conversions follow ibr_ros conventions (:mod:`ibr_ros.core.geometry`,
+:mod:`ibr_ros.core.camera`): 4x4 float64 camera-to-world poses, REP-103 optical frames, ENU
+``map``, float32 depth in metres with 0 = unknown. Bad messages raise :class:`MessageError`.
+"""
+
+from msg_utils.camera_info import camera_info_to_pinhole, pinhole_to_camera_info
+from msg_utils.compressed import (
+    compressed_image_to_numpy,
+    numpy_to_compressed_depth,
+    numpy_to_compressed_image,
+)
+from msg_utils.errors import MessageError
+from msg_utils.flavor import (
+    Flavor,
+    coerce_header,
+    is_rosbags_message,
+    make_header,
+    message_typename,
+    new_message,
+    ns_to_stamp,
+    stamp_to_ns,
+    typestore,
+)
+from msg_utils.image import (
+    ENCODINGS,
+    depth_image_to_m,
+    depth_m_to_mm,
+    depth_mm_to_m,
+    image_to_numpy,
+    image_to_rgb,
+    numpy_to_image,
+)
+from msg_utils.navsat import GeoFix, fix_to_navsatfix, navsatfix_to_fix
+from msg_utils.pose import (
+    matrix_to_odometry,
+    matrix_to_pose,
+    matrix_to_pose_stamped,
+    matrix_to_transform,
+    matrix_to_transform_stamped,
+    odometry_to_matrix,
+    pose_stamped_to_matrix,
+    pose_to_matrix,
+    transform_stamped_to_matrix,
+)
+
+__all__ = [
+    'ENCODINGS',
+    'Flavor',
+    'GeoFix',
+    'MessageError',
+    'camera_info_to_pinhole',
+    'coerce_header',
+    'compressed_image_to_numpy',
+    'depth_image_to_m',
+    'depth_m_to_mm',
+    'depth_mm_to_m',
+    'fix_to_navsatfix',
+    'image_to_numpy',
+    'image_to_rgb',
+    'is_rosbags_message',
+    'make_header',
+    'matrix_to_odometry',
+    'matrix_to_pose',
+    'matrix_to_pose_stamped',
+    'matrix_to_transform',
+    'matrix_to_transform_stamped',
+    'message_typename',
+    'navsatfix_to_fix',
+    'new_message',
+    'ns_to_stamp',
+    'numpy_to_compressed_depth',
+    'numpy_to_compressed_image',
+    'numpy_to_image',
+    'odometry_to_matrix',
+    'pinhole_to_camera_info',
+    'pose_stamped_to_matrix',
+    'pose_to_matrix',
+    'stamp_to_ns',
+    'transform_stamped_to_matrix',
+    'typestore',
+]
