@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-BAG_SUBCOMMANDS = ('ibr_ros.cli.bag_info', 'ibr_ros.cli.bag_from_images')
+BAG_SUBCOMMANDS = ('ibr_ros.cli.bag_info', 'ibr_ros.cli.bag_synth', 'ibr_ros.cli.bag_from_images')
 
 
 def register(sub: argparse._SubParsersAction) -> None:
