@@ -1,0 +1,252 @@
+"""Monocular depth: ONNX models with explicit I/O conventions, and a geometric ground-plane prior.
+
+Every backend produces the paper's G(x) (Section III-A): ``uint16`` 0..65535, larger = nearer, 0 for
+pixels with no finite prediction (sky / infinitely far). G is only a *relative* ordering; the
+per-view lookup table of :mod:`ibr_ros.core.remap` gives it the MVS scale.
+
+ONNX I/O convention (:class:`MonoModelSpec`): the RGB uint8 image is resized to the model input,
+scaled to [0, 1], normalised ``(x - mean) / std`` per channel, laid out NCHW or NHWC in RGB or BGR
+order, and given to the model's first input as float32 with batch 1. The first output (any of
+1xHxW, 1x1xHxW, HxW, 1xHxWx1) is resized back to the image size (bilinear) and interpreted as
+``inverse_depth`` (MiDaS / DPT / Depth-Anything: relative disparity, larger = nearer), ``depth``
+(larger = farther) or ``log_depth`` (MegaDepth: log of depth up to scale).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ibr_ros.core.camera import PinholeCamera
+
+__all__ = [
+    'PRESETS',
+    'GroundPlanePrior',
+    'MonoModelError',
+    'MonoModelSpec',
+    'OnnxMonoDepth',
+    'fit_ground_plane',
+    'nearness_to_g',
+]
+
+LOG = logging.getLogger(__name__)
+
+OutputKind = Literal['inverse_depth', 'depth', 'log_depth']
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+class MonoModelError(ValueError):
+    """A model file or specification that cannot be used."""
+
+
+@dataclass(frozen=True)
+class MonoModelSpec:
+    """How to feed an ONNX depth model and read its output (see module docstring).
+
+    ``input_size`` ``(width, height)`` fixes the model input; when ``None`` the image is resized so
+    that its longer side is ``max_side`` and both sides are multiples of ``multiple_of``.
+    """
+
+    path: Path | None = None
+    input_size: tuple[int, int] | None = None
+    max_side: int = 384
+    multiple_of: int = 32
+    layout: Literal['NCHW', 'NHWC'] = 'NCHW'
+    color_order: Literal['RGB', 'BGR'] = 'RGB'
+    mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    std: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    output: OutputKind = 'inverse_depth'
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        if self.layout not in ('NCHW', 'NHWC'):
+            raise MonoModelError(f'layout must be NCHW or NHWC, got {self.layout!r}')
+        if self.color_order not in ('RGB', 'BGR'):
+            raise MonoModelError(f'color_order must be RGB or BGR, got {self.color_order!r}')
+        if self.output not in ('inverse_depth', 'depth', 'log_depth'):
+            raise MonoModelError(f'output must be inverse_depth, depth or log_depth, got {self.output!r}')
+        if any(s <= 0 for s in self.std):
+            raise MonoModelError(f'std must be positive, got {self.std}')
+        if self.multiple_of < 1 or self.max_side < self.multiple_of:
+            raise MonoModelError(
+                f'need 1 <= multiple_of <= max_side, got {self.multiple_of}, {self.max_side}'
+            )
+
+    def model_size(self, width: int, height: int) -> tuple[int, int]:
+        """Model input ``(width, height)`` for an image of ``width`` x ``height`` pixels."""
+        if self.input_size is not None:
+            return self.input_size
+        s = self.max_side / max(width, height)
+        m = self.multiple_of
+        return max(m, round(width * s / m) * m), max(m, round(height * s / m) * m)
+
+
+#: Conventions of well-known models (give ``path`` with :func:`dataclasses.replace`).
+PRESETS: dict[str, MonoModelSpec] = {
+    # MiDaS v2.1 small: 256x256, ImageNet normalisation, relative inverse depth.
+    'midas_v21_small': MonoModelSpec(
+        input_size=(256, 256), mean=IMAGENET_MEAN, std=IMAGENET_STD, output='inverse_depth'
+    ),
+    # DPT / Depth-Anything-V2: sides multiple of 14 (518 on the long side), ImageNet normalisation.
+    'depth_anything_v2': MonoModelSpec(
+        max_side=518, multiple_of=14, mean=IMAGENET_MEAN, std=IMAGENET_STD, output='inverse_depth'
+    ),
+    'dpt': MonoModelSpec(
+        input_size=(384, 384), mean=(0.5, 0.5, 0.5), std=(0.5, 0.5, 0.5), output='inverse_depth'
+    ),
+    # MegaDepth (hourglass): 512x384 input in [0, 1], output log depth.
+    'megadepth': MonoModelSpec(input_size=(512, 384), output='log_depth'),
+    # The model shipped with ibr_ros (see ibr_ros/models/README.md).
+    'ibr_mono': MonoModelSpec(max_side=384, multiple_of=32, mean=IMAGENET_MEAN, std=IMAGENET_STD),
+}
+
+
+def nearness_to_g(
+    nearness: NDArray[np.floating], valid: NDArray[np.bool_] | None = None
+) -> NDArray[np.uint16]:
+    """Map a relative nearness map (larger = nearer) linearly onto G = 1..65535; invalid pixels -> 0.
+
+    The 0.1th and 99.9th percentiles of the valid values map to 1 and 65535 (values beyond are
+    clipped), so a few outliers do not squeeze the 256 LUT levels.
+    """
+    x = np.asarray(nearness, dtype=np.float64)
+    ok = np.isfinite(x) if valid is None else (np.asarray(valid, bool) & np.isfinite(x))
+    g = np.zeros(x.shape, np.uint16)
+    if not ok.any():
+        return g
+    lo, hi = np.percentile(x[ok], [0.1, 99.9])
+    if hi <= lo:
+        g[ok] = 32768
+        return g
+    scaled = 1.0 + (np.clip(x[ok], lo, hi) - lo) * (65534.0 / (hi - lo))
+    g[ok] = np.rint(scaled).astype(np.uint16)
+    return g
+
+
+class OnnxMonoDepth:
+    """Monocular depth from an ONNX model with onnxruntime on the CPU."""
+
+    def __init__(self, spec: MonoModelSpec) -> None:
+        import onnxruntime as ort
+
+        if spec.path is None or not Path(spec.path).is_file():
+            raise MonoModelError(f'model path {spec.path} is not a file')
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = spec.threads
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(spec.path), opts, providers=['CPUExecutionProvider'])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise MonoModelError(f'{spec.path}: cannot load ONNX model ({exc})') from exc
+        self.spec = spec
+        inp = self.session.get_inputs()[0]
+        self.input_name = inp.name
+        shape = list(inp.shape)
+        if len(shape) != 4:
+            raise MonoModelError(f'{spec.path}: input {inp.name!r} has shape {shape}, expected 4-D')
+        fixed = shape[2:4] if spec.layout == 'NCHW' else shape[1:3]
+        if all(isinstance(s, int) for s in fixed) and spec.input_size is None:
+            self.spec = replace(spec, input_size=(int(fixed[1]), int(fixed[0])))
+
+    def preprocess(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """The model input tensor for an RGB uint8 image."""
+        h, w = rgb.shape[:2]
+        mw, mh = self.spec.model_size(w, h)
+        x = cv2.resize(rgb, (mw, mh), interpolation=cv2.INTER_AREA if mw < w else cv2.INTER_LINEAR)
+        if self.spec.color_order == 'BGR':
+            x = x[..., ::-1]
+        x = (x.astype(np.float32) / 255.0 - np.float32(self.spec.mean)) / np.float32(self.spec.std)
+        x = x.transpose(2, 0, 1) if self.spec.layout == 'NCHW' else x
+        return np.ascontiguousarray(x[None], dtype=np.float32)
+
+    def predict_nearness(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """Relative nearness (larger = nearer) at the image size; NaN where the model gives none."""
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f'rgb must be uint8 HxWx3, got {rgb.dtype} {rgb.shape}')
+        out = np.asarray(self.session.run(None, {self.input_name: self.preprocess(rgb)})[0], dtype=np.float32)
+        out = np.squeeze(out)
+        if out.ndim != 2:
+            raise MonoModelError(f'{self.spec.path}: output has shape {out.shape}, expected one HxW map')
+        out = cv2.resize(out, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
+        if self.spec.output == 'inverse_depth':
+            return out
+        with np.errstate(divide='ignore', invalid='ignore'):
+            if self.spec.output == 'depth':
+                return np.where(out > 0, 1.0 / out, np.nan).astype(np.float32)
+            return (-out).astype(np.float32)  # log depth: -log d orders like 1/d
+
+    def predict_g(self, rgb: NDArray[np.uint8]) -> NDArray[np.uint16]:
+        """The paper's G(x) for an RGB image."""
+        return nearness_to_g(self.predict_nearness(rgb))
+
+
+def fit_ground_plane(
+    points_w: NDArray[np.floating], *, iterations: int = 200, inlier_m: float | None = None, seed: int = 0
+) -> NDArray[np.float64]:
+    """Robust plane ``n . p + d = 0`` (``n`` unit, pointing up: n_z > 0) through Nx3 world points.
+
+    RANSAC on 3-point samples, then a least-squares refit on the inliers. ``inlier_m`` defaults to
+    2% of the points' spread. Returns ``(nx, ny, nz, d)``.
+    """
+    p = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < 3:
+        raise ValueError(f'points_w needs >= 3 finite points to fit a plane, got {len(p)}')
+    spread = float(np.linalg.norm(p.std(axis=0)))
+    tol = inlier_m if inlier_m is not None else max(0.02 * spread, 1e-6)
+    rng = np.random.default_rng(seed)
+    best = np.zeros(len(p), bool)
+    for _ in range(iterations):
+        a, b, c = p[rng.choice(len(p), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-12:
+            continue
+        n /= norm
+        inl = np.abs((p - a) @ n) < tol
+        if inl.sum() > best.sum():
+            best = inl
+    q = p[best] if best.sum() >= 3 else p
+    centre = q.mean(axis=0)
+    n = np.linalg.svd(q - centre, full_matrices=False)[2][-1]
+    if n[2] < 0:
+        n = -n
+    return np.array([*n, -float(n @ centre)])
+
+
+@dataclass
+class GroundPlanePrior:
+    """Geometric monocular prior: depth of a world plane along each pixel ray, +inf above the horizon.
+
+    Works out of the box without a learned model; fit the plane to sparse SfM or MVS points with
+    :func:`fit_ground_plane`.
+    """
+
+    plane: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, 1.0, 0.0]))
+
+    def depth(self, camera: PinholeCamera, t_wc: NDArray[np.float64]) -> NDArray[np.float32]:
+        """z-depth (m) of the plane for every pixel; +inf where the ray misses it (sky) or it is behind."""
+        n, d = self.plane[:3], float(self.plane[3])
+        r = t_wc[:3, :3]
+        c = t_wc[:3, 3]
+        rays = camera.pixel_rays()  # optical frame, z = 1, so t along the ray is the z-depth
+        denom = rays @ (r.T @ n)
+        num = -(n @ c + d)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            z = num / denom
+        z[~(z > 0) | ~np.isfinite(z)] = np.inf
+        return z.astype(np.float32)
+
+    def predict_g(self, camera: PinholeCamera, t_wc: NDArray[np.float64]) -> NDArray[np.uint16]:
+        """G(x) from the plane depth: nearness 1/z, 0 where the ray does not hit the plane."""
+        z = self.depth(camera, t_wc)
+        with np.errstate(divide='ignore'):
+            near = 1.0 / z.astype(np.float64)
+        return nearness_to_g(near, valid=np.isfinite(z))

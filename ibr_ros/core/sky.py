@@ -1,0 +1,155 @@
+"""Sky: segmentation (ONNX model or geometric/photometric fallback), erosion and depth (Eq. 14).
+
+The paper segments the sky with DeepLabv3+, erodes the mask with a disk of about 3% of the image
+diagonal (to protect foreground at the sky boundary) and sets the sky depth to twice the largest
+MVS depth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.mono import IMAGENET_MEAN, IMAGENET_STD, MonoModelError
+
+__all__ = ['OnnxSkySegmenter', 'SkySpec', 'apply_sky_depth', 'erode_sky', 'horizon_mask', 'sky_fallback']
+
+
+@dataclass(frozen=True)
+class SkySpec:
+    """How to run an ONNX segmentation model and read the sky out of it.
+
+    Input handling is as for :class:`ibr_ros.core.mono.MonoModelSpec`. ``output`` is ``logits`` /
+    ``probabilities`` (1xCxHxW, the sky is class ``sky_class``) or ``sky_logit`` (one channel,
+    sigmoid > 0.5 = sky).
+    """
+
+    path: Path | None = None
+    input_size: tuple[int, int] | None = (384, 224)
+    layout: Literal['NCHW', 'NHWC'] = 'NCHW'
+    color_order: Literal['RGB', 'BGR'] = 'RGB'
+    mean: tuple[float, float, float] = IMAGENET_MEAN
+    std: tuple[float, float, float] = IMAGENET_STD
+    output: Literal['logits', 'probabilities', 'sky_logit'] = 'logits'
+    sky_class: int = 0
+    output_index: int = 0
+    threads: int = 1
+
+
+class OnnxSkySegmenter:
+    """Sky mask from any ONNX segmentation model with a sky class (see :class:`SkySpec`)."""
+
+    def __init__(self, spec: SkySpec) -> None:
+        import onnxruntime as ort
+
+        if spec.path is None or not Path(spec.path).is_file():
+            raise MonoModelError(f'sky model path {spec.path} is not a file')
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = spec.threads
+        try:
+            self.session = ort.InferenceSession(str(spec.path), opts, providers=['CPUExecutionProvider'])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise MonoModelError(f'{spec.path}: cannot load ONNX model ({exc})') from exc
+        self.spec = spec
+        self.input_name = self.session.get_inputs()[0].name
+
+    def predict(self, rgb: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        """Boolean HxW sky mask at the image size."""
+        s = self.spec
+        h, w = rgb.shape[:2]
+        size = s.input_size or (w, h)
+        x = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+        if s.color_order == 'BGR':
+            x = x[..., ::-1]
+        x = (x.astype(np.float32) / 255.0 - np.float32(s.mean)) / np.float32(s.std)
+        x = x.transpose(2, 0, 1) if s.layout == 'NCHW' else x
+        out = np.asarray(
+            self.session.run(None, {self.input_name: np.ascontiguousarray(x[None])})[s.output_index]
+        )
+        out = out[0] if out.ndim == 4 else out
+        if s.output == 'sky_logit':
+            score = np.squeeze(out).astype(np.float32)
+            sky_small = score > 0.0
+        else:
+            if out.ndim != 3:
+                raise MonoModelError(f'{s.path}: segmentation output has shape {out.shape}, expected CxHxW')
+            if not 0 <= s.sky_class < out.shape[0]:
+                raise MonoModelError(f'sky_class {s.sky_class} out of range for {out.shape[0]} classes')
+            sky_small = np.argmax(out, axis=0) == s.sky_class
+        return cv2.resize(sky_small.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+def horizon_mask(
+    camera: PinholeCamera, t_wc: NDArray[np.float64], *, margin_deg: float = 0.0
+) -> NDArray[np.bool_]:
+    """Pixels whose viewing ray points above the horizontal plane (ENU z up) by more than ``margin_deg``."""
+    rays = camera.pixel_rays() @ t_wc[:3, :3].T
+    up = rays[..., 2] / np.linalg.norm(rays, axis=-1)
+    return up > np.sin(np.radians(margin_deg))
+
+
+def sky_fallback(
+    rgb: NDArray[np.uint8],
+    camera: PinholeCamera,
+    t_wc: NDArray[np.float64],
+    d_mvs: NDArray[np.float32],
+    *,
+    max_gradient: float = 12.0,
+    min_brightness: float = 90.0,
+) -> NDArray[np.bool_]:
+    """Sky without a segmentation model: above the horizon, no MVS depth, bright and smooth.
+
+    A pixel is sky when its ray is above the horizon, MVS found no depth within 5 px, its smoothed
+    gray gradient magnitude is below ``max_gradient`` (0..255 units) and its gray level is at least
+    ``min_brightness``; the result keeps only regions touching the image top or the horizon band.
+    """
+    above = horizon_mask(camera, t_wc)
+    if not above.any():
+        return above
+    gray = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32), (5, 5), 1.5)
+    grad = cv2.magnitude(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1)) / 8.0
+    known = (np.nan_to_num(d_mvs) > 0).astype(np.uint8)
+    near_depth = cv2.dilate(known, np.ones((11, 11), np.uint8)) > 0
+    cand = above & ~near_depth & (grad < max_gradient) & (gray >= min_brightness)
+    n, labels = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
+    if n <= 1:
+        return cand
+    # Keep components that reach the top row or the top of the above-horizon region in their column.
+    top_of_sky = np.argmax(above, axis=0)
+    cols = np.arange(rgb.shape[1])
+    seeds = set(labels[0][labels[0] > 0].tolist())
+    has_sky_col = above.any(axis=0)
+    seeds |= set(labels[top_of_sky[has_sky_col], cols[has_sky_col]].tolist()) - {0}
+    return np.isin(labels, list(seeds))
+
+
+def erode_sky(mask: NDArray[np.bool_], *, diag_fraction: float = 0.03) -> NDArray[np.bool_]:
+    """Erode ``mask`` with a disk whose diameter is ``diag_fraction`` of the image diagonal (paper: 3%)."""
+    h, w = mask.shape
+    dia = max(1, round(diag_fraction * float(np.hypot(h, w))))
+    if dia <= 1:
+        return mask.copy()
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (dia | 1, dia | 1))
+    # Outside the image counts as sky so that the mask does not shrink away from the borders.
+    return cv2.erode(mask.astype(np.uint8), disk, borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
+
+
+def apply_sky_depth(
+    d_fused: NDArray[np.float32], sky: NDArray[np.bool_], d_mvs: NDArray[np.float32]
+) -> tuple[NDArray[np.float32], float]:
+    """Eq. 14: sky pixels get ``2 * max(MVS depth)``; returns (final depth, sky depth in metres)."""
+    if d_fused.shape != sky.shape or d_fused.shape != d_mvs.shape:
+        raise ValueError(f'shapes differ: d_fused {d_fused.shape}, sky {sky.shape}, d_mvs {d_mvs.shape}')
+    valid = np.isfinite(d_mvs) & (d_mvs > 0)
+    if not valid.any():
+        raise ValueError('d_mvs has no valid depth: the sky depth 2 * D_max is undefined')
+    sky_depth = 2.0 * float(d_mvs[valid].max())
+    out = d_fused.astype(np.float32, copy=True)
+    out[sky] = sky_depth
+    return out, sky_depth
