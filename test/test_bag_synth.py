@@ -15,7 +15,7 @@ import msg_utils
 from ibr_ros.bag import open_bag
 from ibr_ros.cli.main import main
 from ibr_ros.core.synth import SceneConfig, flight_camera, render_view
-from ibr_ros.jobs.synth_bag import TOPICS, quantize_depth
+from ibr_ros.jobs.synth_bag import START_NS, TOPICS, GroundTruthRenderer, quantize_depth
 
 ARGS = ['--duration', '0.5', '--fps', '4', '--size', '96x64', '--trajectory', 'lawnmower']
 
@@ -89,7 +89,9 @@ def test_depth_every_and_quantisation(tmp_path):
 
 @settings(max_examples=60, deadline=None)
 @given(
-    arrays(np.float32, (7, 5), elements=st.floats(0.0009765625, 1e6, width=32) | st.just(np.inf) | st.just(0.0)),
+    arrays(
+        np.float32, (7, 5), elements=st.floats(0.0009765625, 1e6, width=32) | st.just(np.inf) | st.just(0.0)
+    ),
     st.integers(1, 23),
 )
 def test_quantize_depth_bound(depth, bits):
@@ -106,3 +108,19 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert 'must be positive' in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(['bag', 'synth', '--size', '10x', '--out', str(tmp_path / 'y')])
+
+
+def test_shipped_bag_matches_its_sidecar(repo):
+    """The default bag's ground truth is what its synth.json re-renders (README command is honest)."""
+    bag_dir = repo / 'bags' / 'synth_orbit_s0'
+    gt = GroundTruthRenderer(bag_dir)
+    assert gt.flight['depth_every'] == 3
+    with open_bag(bag_dir) as bag:
+        depth_msg = next(iter(bag.messages([TOPICS['depth']], start_ns=START_NS + 300_000_000)))
+        stamp = depth_msg.timestamp_ns
+        pose_msg = next(m for m in bag.messages([TOPICS['pose']]) if m.timestamp_ns == stamp)
+        info_msg = next(m for m in bag.messages([TOPICS['camera_info']]) if m.timestamp_ns == stamp)
+    camera = msg_utils.camera_info_to_pinhole(info_msg.msg)
+    frame = gt.render(msg_utils.pose_stamped_to_matrix(pose_msg.msg), camera)
+    stored = msg_utils.image_to_numpy(depth_msg.msg)
+    np.testing.assert_array_equal(stored, quantize_depth(frame.depth, 10))

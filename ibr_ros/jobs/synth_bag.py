@@ -27,9 +27,28 @@ import numpy as np
 
 import msg_utils
 from ibr_ros.bag.writer import BagWriter
-from ibr_ros.core.synth import LABEL_NAMES, SceneConfig, TrajectoryKind, flight_camera, render_flight
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.synth import (
+    LABEL_NAMES,
+    SceneConfig,
+    SynthFrame,
+    TrajectoryKind,
+    build_scene,
+    flight_camera,
+    render_flight,
+    render_view,
+)
+from ibr_ros.errors import UserError
 
-__all__ = ['START_NS', 'TOPICS', 'SynthBagResult', 'quantize_depth', 'write_synth_bag']
+__all__ = [
+    'START_NS',
+    'TOPICS',
+    'GroundTruthRenderer',
+    'SynthBagResult',
+    'load_sidecar',
+    'quantize_depth',
+    'write_synth_bag',
+]
 
 TOPICS = {
     'image': '/camera/image_raw/compressed',
@@ -161,3 +180,28 @@ def _write_sidecar(out: Path, cfg: SceneConfig, *args: object) -> None:
     tmp = out / '.synth.json.tmp'
     tmp.write_text(json.dumps(doc, indent=2, sort_keys=True, default=list) + '\n')
     tmp.rename(out / 'synth.json')
+
+
+def load_sidecar(bag: Path) -> tuple[SceneConfig, dict[str, object]]:
+    """Scene configuration and flight parameters recorded in ``<bag>/synth.json``."""
+    path = Path(bag) / 'synth.json'
+    try:
+        doc = json.loads(path.read_text())
+        fields = {k: tuple(v) if isinstance(v, list) else v for k, v in doc['scene'].items()}
+        return SceneConfig(**fields), dict(doc['flight'])
+    except FileNotFoundError as exc:
+        raise UserError(f'{bag}: no synth.json: not a synthetic bag made by `ibr bag synth`') from exc
+    except (ValueError, KeyError, TypeError) as exc:
+        raise UserError(f'{path}: unreadable synth.json ({exc})') from exc
+
+
+class GroundTruthRenderer:
+    """Exact ground truth of a synthetic bag for any pose (re-renders its scene deterministically)."""
+
+    def __init__(self, bag: Path) -> None:
+        self.config, self.flight = load_sidecar(bag)
+        self.scene = build_scene(self.config)
+
+    def render(self, t_wc: np.ndarray, camera: PinholeCamera) -> SynthFrame:
+        """Image, z-depth (+inf sky), sky mask and labels seen from ``t_wc`` with ``camera``."""
+        return render_view(self.scene, camera, t_wc)
