@@ -103,6 +103,8 @@ def main() -> int:
     p90 = 1e3 * np.percentile(times, 90)
     print(f'total {total:.1f} s  median {1e3 * med:.0f} ms/frame  p90 {p90:.0f} ms')
     print(f'process CPU {cpu:.1f} s ({1e3 * cpu / n:.0f} ms/frame, {cpu / total:.2f} cores busy on average)')
+    est = cpu / threads * 300 / n
+    print(f'estimate on {threads} idle cores (CPU / {threads}): {est:.1f} s per 300 frames')
     print(f'vs numpy ground: {med / float(np.median(ref)):.1f}x ({1e3 * np.median(ref):.1f} ms/frame)')
     t1 = float(np.median(single))
     print(f'parallel speed-up: {t1 / med:.2f}x (single thread {1e3 * t1:.0f} ms/frame)')

@@ -348,24 +348,8 @@ def _hit_tree(ox, oy, oz, dx, dy, dz, fv, iv, ti, tmin, tmax, amp, freq, seed, a
     """Crown then trunk of tree ti: (t, kind, index, shape noise); index = sphere or tree id."""
     osph = iv[_O_SPH]
     ts0, ts1 = iv[iv[_O_TSTART] + ti], iv[iv[_O_TSTART] + ti + 1]
-    t, k, n = _hit_crown(
-        ox,
-        oy,
-        oz,
-        dx,
-        dy,
-        dz,
-        fv,
-        iv[_O_TREE] + 4 * ti,
-        osph + 4 * ts0,
-        osph + 4 * ts1,
-        tmin,
-        tmax,
-        amp,
-        freq,
-        seed,
-        any_hit,
-    )
+    tb, s0, s1 = iv[_O_TREE] + 4 * ti, osph + 4 * ts0, osph + 4 * ts1
+    t, k, n = _hit_crown(ox, oy, oz, dx, dy, dz, fv, tb, s0, s1, tmin, tmax, amp, freq, seed, any_hit)
     kind, idx = _K_NONE, -1
     if t < _INF:
         kind, idx, tmax = _K_FOLIAGE, (k - osph) // 4, t
@@ -874,14 +858,16 @@ def _ray(u, v, cam):
 def _pixel(u, v, cam, fv, iv, par):
     """Radiance, z-depth, label, sun state and hit key of the ray through pixel (u, v).
 
-    The key identifies the surface: kind + 8 (face + 1) + 64 (index + 1).
+    The key identifies the surface: kind + 8 (face + 1) + 64 (index + 1), with the tree id as
+    index for foliage.
     """
     dx, dy, dz, cz = _ray(u, v, cam)
     t, kind, idx, face, aux = _trace(cam[9], cam[10], cam[11], dx, dy, dz, fv, iv, par)
     r, g, b, label, sun = _shade(
         cam[9], cam[10], cam[11], dx, dy, dz, t, kind, idx, face, aux, fv, iv, par, -1
     )
-    return r, g, b, t * cz, label, sun, kind + 8 * (face + 1) + 64 * (idx + 1)
+    kid = iv[iv[_O_STREE] + idx] if kind == _K_FOLIAGE else idx
+    return r, g, b, t * cz, label, sun, kind + 8 * (face + 1) + 64 * (kid + 1)
 
 
 @njit(**_OPTS)
@@ -889,18 +875,21 @@ def _corner(u, v, cam, fv, iv, par, shadow_hint, key):
     """Radiance of the ray through (u, v); ``key`` >= 0: the surface all 4 pixels around it hit.
 
     On a planar surface (ground, box face) seen by all 4 pixels the corner ray meets the same
-    plane, so it is intersected directly instead of traced through the scene.
+    plane, so it is intersected directly instead of traced through the scene; on foliage of one
+    tree only that tree is traced (a thin occluder in front of it may be missed: anti-aliasing
+    only).
     """
     dx, dy, dz, _ = _ray(u, v, cam)
     ox, oy, oz = cam[9], cam[10], cam[11]
     kind, face, idx = key % 8, (key // 8) % 8 - 1, key // 64 - 1
-    t = _INF
-    if key >= 0:
+    t, aux = _INF, 0.0
+    if key >= 0 and kind == _K_FOLIAGE:
+        amp, freq, seed = par[_FOL_AMP], par[_FOL_FREQ], int(par[_SEED])
+        t, kind, idx, aux = _hit_tree(ox, oy, oz, dx, dy, dz, fv, iv, idx, 1e-4, _INF, amp, freq, seed, False)
+    elif key >= 0:
         t = _plane_t(ox, oy, oz, dx, dy, dz, kind, idx, face, fv, iv)
     if t == _INF:
         t, kind, idx, face, aux = _trace(ox, oy, oz, dx, dy, dz, fv, iv, par)
-    else:
-        aux = 0.0
     r, g, b, _, _ = _shade(ox, oy, oz, dx, dy, dz, t, kind, idx, face, aux, fv, iv, par, shadow_hint)
     return r, g, b
 

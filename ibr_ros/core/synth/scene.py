@@ -80,7 +80,17 @@ PARAM_INDEX = {n: i for i, n in enumerate(PARAM_NAMES)}
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """Parameters of the procedural town (lengths in metres, angles in degrees, colours 0..1)."""
+    """Parameters of the procedural town (lengths in metres, angles in degrees, colours 0..1).
+
+    ``extent_m``: town half-size (roads run from -extent to +extent); ``block_m``: nominal road
+    spacing (rounded so the grid fits the extent); ``n_buildings``: at most this many buildings
+    (one per lot, lots are limited by the blocks); ``building_height_m`` / ``tree_height_m``:
+    (min, max); ``low_texture_fraction``: share of buildings with uniform, textureless facades;
+    ``rotated_fraction``: share of buildings rotated about z; ``park_fraction``: share of blocks
+    that are parks; ``tree_density``: multiplier on tree counts (0: no trees); sun azimuth is
+    counter-clockwise from east (ENU), elevation above the horizon; ``cloud_cover`` 0..1;
+    ``hills``: ring of hills at ``hill_ring_m`` (inner, outer radius) plus farther mountains.
+    """
 
     seed: int = 0
     extent_m: float = 150.0
@@ -98,9 +108,33 @@ class SceneConfig:
     sun_elevation_deg: float = 42.0
     sky_zenith_rgb: tuple[float, float, float] = (0.28, 0.48, 0.82)
     sky_horizon_rgb: tuple[float, float, float] = (0.74, 0.82, 0.90)
-    cloud_cover: float = 0.35
+    cloud_cover: float = 0.5
     hills: bool = True
     hill_ring_m: tuple[float, float] = (650.0, 1000.0)
+
+    def __post_init__(self) -> None:
+        sp = 2 * self.extent_m / max(1, round(2 * self.extent_m / max(self.block_m, 1e-9)))
+        checks = (
+            (self.extent_m > 0, 'extent_m must be > 0'),
+            (self.road_width_m > 0 and self.sidewalk_m >= 0, 'road_width_m > 0 and sidewalk_m >= 0'),
+            (sp > self.road_width_m + 2 * self.sidewalk_m + 6, 'block_m too small for roads and sidewalks'),
+            (self.n_buildings >= 0, 'n_buildings must be >= 0'),
+            (0 < self.building_height_m[0] <= self.building_height_m[1], 'building_height_m: 0 < min <= max'),
+            (0 < self.tree_height_m[0] <= self.tree_height_m[1], 'tree_height_m: 0 < min <= max'),
+            (self.tree_density >= 0, 'tree_density must be >= 0'),
+            (0 < self.sun_elevation_deg < 90, 'sun_elevation_deg must be in (0, 90)'),
+            (0 <= self.cloud_cover <= 1, 'cloud_cover must be in [0, 1]'),
+            (
+                not self.hills or self.extent_m * 2 < self.hill_ring_m[0] <= self.hill_ring_m[1],
+                'hill_ring_m must satisfy 2 extent_m < inner <= outer',
+            ),
+        )
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(f'SceneConfig: {msg}')
+        for name in ('low_texture_fraction', 'rotated_fraction', 'park_fraction'):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f'SceneConfig: {name} must be in [0, 1]')
 
     @property
     def max_height_m(self) -> float:
@@ -174,8 +208,8 @@ _UNIFORM_PALETTE = np.array([[0.86, 0.85, 0.82], [0.78, 0.78, 0.76], [0.83, 0.78
 _ROOF_PALETTE = np.array([[0.36, 0.36, 0.37], [0.48, 0.47, 0.45], [0.50, 0.32, 0.26], [0.30, 0.31, 0.33]])
 _FOLIAGE_PALETTE = np.array([[0.20, 0.36, 0.12], [0.26, 0.40, 0.14], [0.18, 0.30, 0.14], [0.32, 0.38, 0.16]])
 
-_FOLIAGE_AMP = 0.25
-_FOLIAGE_FREQ = 0.9
+_FOLIAGE_AMP = 0.18
+_FOLIAGE_FREQ = 1.1
 
 
 def _box_footprint_dist(boxes: NDArray[np.float64], x: float, y: float) -> float:
@@ -340,8 +374,6 @@ def _build_sun_grid(
 
 def build_scene(cfg: SceneConfig) -> Scene:
     """Build the town described by ``cfg`` (deterministic in ``cfg.seed``)."""
-    if cfg.extent_m <= 0 or cfg.block_m <= cfg.road_width_m + 2 * cfg.sidewalk_m + 4:
-        raise ValueError(f'extent_m must be > 0 and block_m large enough, got {cfg}')
     rng = np.random.default_rng(cfg.seed)
     e = float(cfg.extent_m)
     n_blocks = max(1, round(2 * e / cfg.block_m))
