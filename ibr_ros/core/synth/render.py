@@ -1,9 +1,15 @@
 """Numba ray caster for :class:`~ibr_ros.core.synth.scene.Scene` with exact ground truth.
 
 Shading is view-independent: every surface colour is a function of the 3D point only (procedural
-albedo in world / object coordinates, Lambertian sun with a hard shadow ray, hemispherical
-ambient, haze by distance of the point from the town centre), so one 3D point has the same colour
-in every view. The sky is a function of the ray direction only.
+albedo in world / object coordinates with features >= ~10 cm and soft 3-5 cm edges, Lambertian
+sun with a hard shadow ray, hemispherical ambient, haze by distance of the point from the town
+centre), so one 3D point has the same colour in every view. The sky is a function of the ray
+direction only. Foliage is not self-shadowed (wrapped Lambert on the sphere normal instead).
+
+Geometry: ground plane z = 0 (out to ``world_r``), boxes (slab test in the box frame), crowns
+(sphere-traced noise-displaced spheres, see _hit_crown), trunks (cylinders), hills (ellipsoids).
+Primary rays walk a uniform 2D grid (DDA) that skips cells whose objects are all below the ray;
+shadow rays look up one cell of a grid in the plane orthogonal to the sun.
 
 Anti-aliasing (``antialias=True``): adaptive quincunx sampling. The colour of a pixel is
 ``0.5 * centre + 0.125 * (4 pixel corners)``; a corner sample, shared by the 4 pixels around

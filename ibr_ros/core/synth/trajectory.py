@@ -5,10 +5,11 @@ pitch stays inside ``pitch_range_deg`` and the altitude inside ``altitude_range`
 
 * ``orbit``: circle around a point near the town centre, looking at it;
 * ``lawnmower``: back-and-forth lanes joined by half circles, looking ahead and down;
-* ``forward``: a gently curving line from outside the town across it, looking ahead and down.
+* ``forward``: a gently curving line from the edge of the town across it, looking ahead and
+  down, steering back towards the centre whenever it gets beyond the town.
 
-All randomness comes from ``numpy.random.default_rng(seed)``; positions and angles are smooth
-(C1) functions of time.
+All randomness comes from ``numpy.random.default_rng(seed)``; positions are C1 and angles
+continuous functions of time (no jumps between frames).
 """
 
 from __future__ import annotations
@@ -129,23 +130,26 @@ def make_trajectory(
             out.append(TrajectorySample(float(t), pose(x, y, z, psi + head, pitch)))
     else:
         start_ang = rng.uniform(0, 2 * math.pi)
-        r0 = 1.15 * e
-        x0, y0 = r0 * math.cos(start_ang), r0 * math.sin(start_ang)
-        head0 = start_ang + math.pi + math.radians(rng.uniform(-20.0, 20.0))
+        x, y = 1.15 * e * math.cos(start_ang), 1.15 * e * math.sin(start_ang)
+        head = start_ang + math.pi + math.radians(rng.uniform(-20.0, 20.0))
         turn = math.radians(rng.uniform(-2.5, 2.5))  # rad/s
         alt0 = rng.uniform(alo + 0.3 * span, ahi - 0.2 * span)
-        climb = rng.uniform(-0.5, 0.5)
+        alt_amp, alt_w = 0.15 * span, rng.uniform(0.05, 0.15)
         pitch0 = rng.uniform(max(plo, math.radians(-45)), min(phi, math.radians(-20)))
-        for t in ts:
-            if abs(turn) > 1e-9:
-                rad = speed_mps / turn
-                head = head0 + turn * t
-                x = x0 + rad * (math.sin(head) - math.sin(head0))
-                y = y0 - rad * (math.cos(head) - math.cos(head0))
-            else:
-                head = head0
-                x, y = x0 + speed_mps * t * math.cos(head0), y0 + speed_mps * t * math.sin(head0)
-            z = alt0 + climb * t
+        # Integrate the heading: a constant turn rate plus, once beyond the town, steering back
+        # towards its centre (so long flights stay over the town); 20 sub-steps per frame.
+        sub = 20
+        dt = 1.0 / (fps * sub)
+        for i, t in enumerate(ts):
+            if i > 0:
+                for _ in range(sub):
+                    to_c = math.atan2(-y, -x) - head
+                    to_c = math.atan2(math.sin(to_c), math.cos(to_c))
+                    away = min(max((math.hypot(x, y) - 0.9 * e) / (0.4 * e), 0.0), 1.0)
+                    head += (turn + 0.25 * away * away * (3 - 2 * away) * to_c) * dt
+                    x += speed_mps * math.cos(head) * dt
+                    y += speed_mps * math.sin(head) * dt
+            z = alt0 + alt_amp * math.sin(alt_w * t)
             pitch = pitch0 + math.radians(4.0) * math.sin(0.25 * t)
             out.append(TrajectorySample(float(t), pose(x, y, z, head, pitch)))
     return out
