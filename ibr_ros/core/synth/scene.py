@@ -208,8 +208,10 @@ _UNIFORM_PALETTE = np.array([[0.86, 0.85, 0.82], [0.78, 0.78, 0.76], [0.83, 0.78
 _ROOF_PALETTE = np.array([[0.36, 0.36, 0.37], [0.48, 0.47, 0.45], [0.50, 0.32, 0.26], [0.30, 0.31, 0.33]])
 _FOLIAGE_PALETTE = np.array([[0.20, 0.36, 0.12], [0.26, 0.40, 0.14], [0.18, 0.30, 0.14], [0.32, 0.38, 0.16]])
 
-_FOLIAGE_AMP = 0.18
-_FOLIAGE_FREQ = 1.1
+# Foliage shape (relative radius modulation, spatial frequency 1/m). Changing these (or any
+# geometry) changes the ground truth of recorded bags, e.g. bags/synth_orbit_s0.
+_FOLIAGE_AMP = 0.25
+_FOLIAGE_FREQ = 0.9
 
 
 def _box_footprint_dist(boxes: NDArray[np.float64], x: float, y: float) -> float:
