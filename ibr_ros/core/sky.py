@@ -105,7 +105,7 @@ def sky_fallback(
 ) -> NDArray[np.bool_]:
     """Sky without a segmentation model: above the horizon, no MVS depth, bright and smooth.
 
-    A pixel is sky when its ray is above the horizon, MVS found no depth within 5 px, its smoothed
+    A pixel is sky when its ray is above the horizon, MVS found no depth within 1 px, its smoothed
     gray gradient magnitude is below ``max_gradient`` (0..255 units) and its gray level is at least
     ``min_brightness``; the result keeps only regions touching the image top or the horizon band.
     """
@@ -115,7 +115,7 @@ def sky_fallback(
     gray = cv2.GaussianBlur(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32), (5, 5), 1.5)
     grad = cv2.magnitude(cv2.Sobel(gray, cv2.CV_32F, 1, 0), cv2.Sobel(gray, cv2.CV_32F, 0, 1)) / 8.0
     known = (np.nan_to_num(d_mvs) > 0).astype(np.uint8)
-    near_depth = cv2.dilate(known, np.ones((11, 11), np.uint8)) > 0
+    near_depth = cv2.dilate(known, np.ones((3, 3), np.uint8)) > 0
     cand = above & ~near_depth & (grad < max_gradient) & (gray >= min_brightness)
     n, labels = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
     if n <= 1:

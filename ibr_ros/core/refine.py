@@ -1,0 +1,230 @@
+"""Per-view depth refinement (paper Section III-A): MVS -> prune -> mono remap -> MST fusion -> sky.
+
+:class:`DepthRefiner` composes :mod:`mvs`, :mod:`prune`, :mod:`mono`, :mod:`remap`, :mod:`fusion`
+and :mod:`sky` and keeps every intermediate map for debugging and evaluation. Depth maps are
+float32 z-depth in metres, 0 = unknown, +inf = infinitely far.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ibr_ros.core.fusion import fuse_depth
+from ibr_ros.core.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth, fit_ground_plane
+from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
+from ibr_ros.core.prune import prune_depth
+from ibr_ros.core.remap import lut_remap
+from ibr_ros.core.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, sky_fallback
+
+__all__ = ['DepthRefiner', 'RefineError', 'RefinedDepth', 'RefinerConfig']
+
+LOG = logging.getLogger(__name__)
+
+FLAG_SPARSE_MVS = 'sparse_mvs'
+FLAG_PLANE_FALLBACK = 'ground_plane_from_pose'
+
+
+class RefineError(ValueError):
+    """A view that cannot be refined (bad shapes, no usable MVS depth to give the mono depth a scale)."""
+
+
+@dataclass(frozen=True)
+class RefinerConfig:
+    """Parameters of :class:`DepthRefiner`; defaults follow the paper.
+
+    ``mono``: ``'plane'`` (geometric ground-plane prior, no model) or ``'onnx'`` (``mono_model``).
+    ``sky``: ``'fallback'`` (horizon + photometric cues + no MVS depth), ``'onnx'`` (``sky_model``)
+    or ``'none'``. ``sky_erosion``: erosion disk diameter as a fraction of the image diagonal.
+    ``min_mvs_fraction``: below this fraction of known MVS pixels the result is flagged
+    ``sparse_mvs`` (it is still computed while at least ``min_mvs_pixels`` are known).
+    """
+
+    prune: bool = True
+    prune_small: int = 5
+    prune_large: int = 31
+    prune_sigma_c: float = 0.033
+    sigma: float = 0.06
+    alpha: float = 1e-5
+    mono: Literal['plane', 'onnx'] = 'plane'
+    mono_model: MonoModelSpec | None = None
+    sky: Literal['fallback', 'onnx', 'none'] = 'fallback'
+    sky_model: SkySpec | None = None
+    sky_erosion: float = 0.03
+    min_mvs_pixels: int = 64
+    min_mvs_fraction: float = 0.01
+    mvs: MvsOptions = field(default_factory=MvsOptions)
+
+    def __post_init__(self) -> None:
+        if self.mono not in ('plane', 'onnx'):
+            raise ValueError(f"RefinerConfig.mono must be 'plane' or 'onnx', got {self.mono!r}")
+        if self.sky not in ('fallback', 'onnx', 'none'):
+            raise ValueError(f"RefinerConfig.sky must be 'fallback', 'onnx' or 'none', got {self.sky!r}")
+        if self.mono == 'onnx' and self.mono_model is None:
+            raise ValueError("RefinerConfig.mono='onnx' needs mono_model")
+        if self.sky == 'onnx' and self.sky_model is None:
+            raise ValueError("RefinerConfig.sky='onnx' needs sky_model")
+        if self.sigma <= 0 or self.alpha < 0:
+            raise ValueError(f'RefinerConfig needs sigma > 0 and alpha >= 0, got {self.sigma}, {self.alpha}')
+
+
+@dataclass(frozen=True, eq=False)
+class RefinedDepth:
+    """The final depth of one view and every intermediate map (paper Fig. 3)."""
+
+    depth: NDArray[np.float32]
+    mvs: NDArray[np.float32]
+    mvs_pruned: NDArray[np.float32]
+    g: NDArray[np.uint16]
+    mono_remapped: NDArray[np.float32]
+    fused: NDArray[np.float32]
+    sky: NDArray[np.bool_]
+    sky_depth: float
+    flags: tuple[str, ...] = ()
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def mvs_completeness(self) -> float:
+        """Fraction of pixels with pruned MVS depth."""
+        return float(np.count_nonzero(self.mvs_pruned > 0)) / self.mvs_pruned.size
+
+
+def _clean_mvs(d_mvs: NDArray[np.floating], shape: tuple[int, int]) -> NDArray[np.float32]:
+    d = np.asarray(d_mvs, dtype=np.float32)
+    if d.shape != shape:
+        raise RefineError(f'd_mvs has shape {d.shape}, the image is {shape}')
+    return np.where(np.isfinite(d) & (d > 0), d, np.float32(0)).astype(np.float32)
+
+
+def _world_points(view: MvsView, depth: NDArray[np.float32], max_points: int = 20000) -> NDArray[np.float64]:
+    v, u = np.nonzero(depth > 0)
+    if len(u) > max_points:
+        step = len(u) // max_points + 1
+        u, v = u[::step], v[::step]
+    pc = view.camera.backproject(np.c_[u, v], depth[v, u])
+    return pc @ view.t_wc[:3, :3].T + view.t_wc[:3, 3]
+
+
+class DepthRefiner:
+    """Refine the depth of one view from its MVS depth, a monocular prediction and the sky."""
+
+    def __init__(self, config: RefinerConfig | None = None) -> None:
+        self.config = config or RefinerConfig()
+        c = self.config
+        self._mono = OnnxMonoDepth(c.mono_model) if c.mono == 'onnx' else None  # type: ignore[arg-type]
+        self._sky = OnnxSkySegmenter(c.sky_model) if c.sky == 'onnx' else None  # type: ignore[arg-type]
+
+    def refine(
+        self,
+        view: MvsView,
+        neighbours: Sequence[MvsView],
+        *,
+        d_mvs: NDArray[np.floating] | None = None,
+        points_w: NDArray[np.floating] | None = None,
+        depth_range: tuple[float, float] | None = None,
+    ) -> RefinedDepth:
+        """Refined depth of ``view``; runs MVS with ``neighbours`` unless ``d_mvs`` is given.
+
+        MVS computes the photometric depth of ``view`` and of every neighbour so that the
+        geometric filter can check ``view``'s depth against them (about 5x the cost of one view;
+        batch whole keyframe sets with :func:`ibr_ros.core.mvs.compute_depth_maps` instead).
+        """
+        t0 = time.perf_counter()
+        if d_mvs is None:
+            if not neighbours:
+                raise RefineError('a single view has no neighbours for MVS: pass d_mvs or neighbour views')
+            results = compute_depth_maps(
+                [view, *neighbours], options=self.config.mvs, points_w=points_w, depth_range=depth_range
+            )
+            if results[0].reason:
+                LOG.warning('MVS gave no depth for the view: %s', results[0].reason)
+            d_mvs = results[0].depth
+        refined = self.refine_from_mvs(view, d_mvs)
+        refined.timings_s['mvs'] = time.perf_counter() - t0 - sum(refined.timings_s.values())
+        return refined
+
+    def refine_from_mvs(self, view: MvsView, d_mvs: NDArray[np.floating]) -> RefinedDepth:
+        """Everything after MVS: prune, sky mask, G, LUT remap, fusion and sky depth."""
+        c = self.config
+        rgb = np.asarray(view.rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise RefineError(f'view.rgb must be uint8 HxWx3, got {rgb.dtype} {rgb.shape}')
+        shape = rgb.shape[:2]
+        if (view.camera.height, view.camera.width) != shape:
+            raise RefineError(
+                f'view.camera is {view.camera.width}x{view.camera.height}, rgb is {shape[1]}x{shape[0]}'
+            )
+        timings: dict[str, float] = {}
+        flags: list[str] = []
+        tick = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal tick
+            now = time.perf_counter()
+            timings[name] = now - tick
+            tick = now
+
+        mvs = _clean_mvs(d_mvs, shape)
+        known = int(np.count_nonzero(mvs))
+        if known < c.min_mvs_pixels:
+            raise RefineError(
+                f'd_mvs has {known} known pixels (< {c.min_mvs_pixels}): no scale for the monocular depth'
+            )
+        pruned = (
+            prune_depth(mvs, rgb, small=c.prune_small, large=c.prune_large, sigma_c=c.prune_sigma_c)
+            if c.prune
+            else mvs
+        )
+        if np.count_nonzero(pruned) < c.min_mvs_pixels:
+            LOG.warning(
+                'pruning left fewer than %d MVS pixels: using the unpruned MVS depth', c.min_mvs_pixels
+            )
+            pruned = mvs
+        if np.count_nonzero(pruned) < c.min_mvs_fraction * pruned.size:
+            flags.append(FLAG_SPARSE_MVS)
+        lap('prune')
+
+        if self._sky is not None:
+            sky = self._sky.predict(rgb)
+        elif c.sky == 'fallback':
+            sky = sky_fallback(rgb, view.camera, view.t_wc, pruned)
+        else:
+            sky = np.zeros(shape, bool)
+        sky = erode_sky(sky, diag_fraction=c.sky_erosion) if sky.any() else sky
+        lap('sky')
+
+        if self._mono is not None:
+            g = self._mono.predict_g(rgb)
+        else:
+            try:
+                plane = fit_ground_plane(_world_points(view, pruned))
+            except ValueError:
+                plane = np.array([0.0, 0.0, 1.0, 0.0])
+                flags.append(FLAG_PLANE_FALLBACK)
+            g = GroundPlanePrior(plane).predict_g(view.camera, view.t_wc)
+        lap('mono')
+
+        mono = lut_remap(g, pruned)
+        lap('remap')
+        fused = fuse_depth(rgb, pruned, mono, sigma=c.sigma, alpha=c.alpha)
+        lap('fusion')
+        final, sky_depth = apply_sky_depth(fused, sky, pruned)
+        lap('sky_depth')
+        return RefinedDepth(
+            depth=final,
+            mvs=mvs,
+            mvs_pruned=pruned,
+            g=g,
+            mono_remapped=mono,
+            fused=fused,
+            sky=sky,
+            sky_depth=sky_depth,
+            flags=tuple(flags),
+            timings_s=timings,
+        )

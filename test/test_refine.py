@@ -1,0 +1,86 @@
+"""DepthRefiner: the composition of Section III-A on synthetic ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibr_ros.core.geometry import look_at
+from ibr_ros.core.mvs import MvsView
+from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.core.synth import LABEL_NAMES, SceneConfig, build_scene, flight_camera, render_view
+
+TREE, WALL = LABEL_NAMES.index('tree'), LABEL_NAMES.index('wall')
+
+
+@pytest.fixture(scope='module')
+def frame():
+    scene = build_scene(SceneConfig(seed=5))
+    cam = flight_camera((320, 180), 70.0)
+    t_wc = look_at([-120.0, -90.0, 55.0], [0.0, 0.0, 0.0])
+    return cam, t_wc, render_view(scene, cam, t_wc)
+
+
+def _simulated_mvs(frame_):
+    """GT depth with the holes MVS leaves: sky, most foliage and walls, random dropouts, some outliers."""
+    _, _, f = frame_
+    rng = np.random.default_rng(0)
+    d = np.where(np.isfinite(f.depth), f.depth, 0).astype(np.float32)
+    d[(f.label == TREE) & (rng.random(d.shape) < 0.9)] = 0
+    d[(f.label == WALL) & (rng.random(d.shape) < 0.6)] = 0
+    d[rng.random(d.shape) < 0.3] = 0
+    outliers = (rng.random(d.shape) < 0.005) & (d > 0)
+    d[outliers] *= 1.5
+    return d, outliers
+
+
+def test_refined_depth_repairs_holes(frame):
+    cam, t_wc, f = frame
+    mvs, outliers = _simulated_mvs(frame)
+    r = DepthRefiner().refine_from_mvs(MvsView(f.rgb, cam, t_wc), mvs)
+    hole = (mvs == 0) & np.isfinite(f.depth) & ~r.sky
+    rel = lambda d: np.abs(d[hole] - f.depth[hole]) / f.depth[hole]  # noqa: E731
+    assert np.median(rel(r.fused)) < 0.05
+    assert np.mean(rel(r.fused)) < np.mean(rel(r.mono_remapped))
+    # Pruning removes most injected outliers and keeps most good samples.
+    assert np.count_nonzero(r.mvs_pruned[outliers]) < 0.3 * outliers.sum()
+    assert np.count_nonzero(r.mvs_pruned) > 0.9 * np.count_nonzero((mvs > 0) & ~outliers)
+    # Known MVS depth passes through; sky (eroded) gets 2 * max MVS depth.
+    keep = (r.mvs_pruned > 0) & ~r.sky
+    np.testing.assert_array_equal(r.depth[keep], r.mvs_pruned[keep])
+    assert r.sky_depth == pytest.approx(2 * r.mvs_pruned.max())
+    assert (r.depth[r.sky] == np.float32(r.sky_depth)).all()
+    assert np.isfinite(r.depth).all()
+    assert r.depth.min() > 0
+    assert set(r.timings_s) == {'prune', 'sky', 'mono', 'remap', 'fusion', 'sky_depth'}
+
+
+def test_alpha_zero_ablation_and_no_prune(frame):
+    cam, t_wc, f = frame
+    mvs, _ = _simulated_mvs(frame)
+    r = DepthRefiner(RefinerConfig(alpha=0.0, prune=False, sky='none')).refine_from_mvs(
+        MvsView(f.rgb, cam, t_wc), mvs
+    )
+    assert not r.sky.any()
+    np.testing.assert_array_equal(r.mvs_pruned, r.mvs)
+    assert np.isfinite(r.depth).all()
+
+
+def test_bad_input_is_a_clear_error(frame):
+    cam, t_wc, f = frame
+    view = MvsView(f.rgb, cam, t_wc)
+    refiner = DepthRefiner()
+    with pytest.raises(RefineError, match='known pixels'):
+        refiner.refine_from_mvs(view, np.zeros((180, 320), np.float32))
+    with pytest.raises(RefineError, match='shape'):
+        refiner.refine_from_mvs(view, np.ones((10, 10), np.float32))
+    with pytest.raises(RefineError, match='no neighbours'):
+        refiner.refine(view, [])
+    # NaN and inf in the MVS map count as unknown, never propagate.
+    mvs, _ = _simulated_mvs(frame)
+    mvs[:5] = np.nan
+    mvs[5:10] = np.inf
+    r = refiner.refine_from_mvs(view, mvs)
+    assert np.isfinite(r.depth).all()
+    with pytest.raises(ValueError, match='mono'):
+        RefinerConfig(mono='midas')  # type: ignore[arg-type]
