@@ -89,9 +89,12 @@ def horizon_mask(
     camera: PinholeCamera, t_wc: NDArray[np.float64], *, margin_deg: float = 0.0
 ) -> NDArray[np.bool_]:
     """Pixels whose viewing ray points above the horizontal plane (ENU z up) by more than ``margin_deg``."""
-    rays = camera.pixel_rays() @ t_wc[:3, :3].T
-    up = rays[..., 2] / np.linalg.norm(rays, axis=-1)
-    return up > np.sin(np.radians(margin_deg))
+    x = (np.arange(camera.width) - camera.cx) / camera.fx
+    y = (np.arange(camera.height) - camera.cy) / camera.fy
+    r = t_wc[2, :3]  # world z of the optical axes
+    up = r[0] * x[None, :] + r[1] * y[:, None] + r[2]
+    norm = np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)
+    return up > np.sin(np.radians(margin_deg)) * norm
 
 
 def sky_fallback(
@@ -130,14 +133,18 @@ def sky_fallback(
 
 
 def erode_sky(mask: NDArray[np.bool_], *, diag_fraction: float = 0.03) -> NDArray[np.bool_]:
-    """Erode ``mask`` with a disk whose diameter is ``diag_fraction`` of the image diagonal (paper: 3%)."""
+    """Erode ``mask`` with a disk whose diameter is ``diag_fraction`` of the image diagonal (paper: 3%).
+
+    Computed as "Euclidean distance to the nearest non-sky pixel > radius" (exact distance
+    transform), which equals erosion by a disk and costs the same for any disk size. Outside the
+    image counts as sky, so the mask does not shrink away from the image borders.
+    """
     h, w = mask.shape
-    dia = max(1, round(diag_fraction * float(np.hypot(h, w))))
-    if dia <= 1:
+    radius = 0.5 * diag_fraction * float(np.hypot(h, w))
+    if radius < 1.0 or not mask.any():
         return mask.copy()
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (dia | 1, dia | 1))
-    # Outside the image counts as sky so that the mask does not shrink away from the borders.
-    return cv2.erode(mask.astype(np.uint8), disk, borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
+    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return dist > radius
 
 
 def apply_sky_depth(
