@@ -1,0 +1,1049 @@
+"""Per-view multi-view stereo depth: plane sweep + ZNCC on the CPU, COLMAP-style geometric filter.
+
+Stands in for COLMAP's *geometric* depth maps (Liu et al. 2020, Section III-A) on machines without
+CUDA. For one reference view and its source views (:func:`select_neighbours`), :func:`mvs_depth`:
+
+1. **Sweep** at ``sweep_scale`` (default half resolution): fronto-parallel planes ``z = d`` of the
+   reference, uniform in inverse depth over ``depth_range`` (about ``plane_step_px`` pixels of
+   disparity per plane in the widest-baseline source). A plane maps reference pixels to a source by
+   ``H = K_s (R + t n^T / d) K_r^-1`` (``n = (0, 0, 1)``, ``[R | t]`` reference-to-source); each
+   source is warped by it (bilinear) and the zero-mean normalised cross-correlation (ZNCC) over a
+   ``window`` x ``window`` box comes from running box sums (O(1) per pixel and plane). The plane's
+   score is the mean of the ``top_k`` best source ZNCCs (robust to occlusion in the others); the
+   winner takes all, with a parabola through its neighbours for sub-plane inverse depth.
+2. **Refine** at full resolution, every pixel warped by its own inverse depth (so windows follow
+   the coarse surface, slanted ground included): each pixel picks the best of the coarse inverse
+   depth of its own, its 4 neighbouring and the nearest / farthest coarse pixels within
+   ``propagation_radius`` (this pulls background depth back over foreground "fattening"), then
+   offsets of half a coarse plane step around it (parabola fit), then ``surface_passes`` times
+   quarter-step offsets around the 5x5 median of the result.
+3. **Reject** pixels whose score is below ``min_zncc``, whose reference window's standard
+   deviation is below ``min_std`` grey levels (low texture), whose sweep is ambiguous (another
+   score peak more than two planes away within ``min_margin``), whose winner is the first or last
+   plane (out of range: the sky matches best at infinity, so it is rejected here), and the
+   foreground side of depth edges: pixels more than ``edge_trim_ratio`` nearer (in inverse depth)
+   than a kept pixel within ``edge_trim_px``, where window matching smears foreground depth over
+   the background.
+
+:func:`geometric_filter` keeps a pixel's depth only where at least ``min_consistent`` other views'
+depth maps agree after a forward-backward reprojection (COLMAP's ``filter_min_num_consistent`` and
+``filter_geom_consistency_max_cost`` in pixels, plus a relative depth test).
+:func:`compute_depth_maps` runs the whole thing for a set of views.
+
+Output depth: float32 z-depth in metres, 0 = unknown (sky, low texture, occlusions, ambiguity).
+Pixels: centre of the top-left pixel at (0, 0); poses: 4x4 camera-to-world ``T_wc``
+(:mod:`ibr_ros.core.geometry`). Images must be undistorted (:mod:`ibr_ros.core.undistort`).
+
+``backend='colmap'`` runs ``pycolmap.patch_match_stereo`` instead; it needs a CUDA build of
+pycolmap and raises :class:`MvsBackendUnavailable` otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numba
+import numpy as np
+from numba import njit, prange
+from numpy.typing import ArrayLike, NDArray
+
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry import validate_pose
+
+__all__ = [
+    'REASON_NO_DEPTH_RANGE',
+    'REASON_NO_OVERLAP',
+    'REASON_NO_PARALLAX',
+    'REASON_NO_SOURCES',
+    'MvsBackendUnavailable',
+    'MvsOptions',
+    'MvsResult',
+    'MvsView',
+    'compute_depth_maps',
+    'depth_range_from_points',
+    'geometric_filter',
+    'mvs_depth',
+    'select_neighbours',
+]
+
+#: Reason flags of an all-zero :class:`MvsResult`: no source views (or no neighbours passed the
+#: selection rule), no source sees the reference frustum, the sources' baselines give less than
+#: one pixel of disparity over the depth range, no depth range (too few sparse points in view).
+REASON_NO_SOURCES = 'no_sources'
+REASON_NO_OVERLAP = 'no_overlap'
+REASON_NO_PARALLAX = 'no_parallax'
+REASON_NO_DEPTH_RANGE = 'no_depth_range'
+
+_STRIP_ROWS = 32  # rows per parallel work item of _sweep
+
+
+class MvsBackendUnavailable(RuntimeError):  # noqa: N818 (the name the callers use)
+    """The requested MVS backend cannot run on this machine (e.g. pycolmap without CUDA)."""
+
+
+@dataclass(frozen=True)
+class MvsOptions:
+    """Parameters of :func:`mvs_depth` and :func:`compute_depth_maps` (see the module docstring).
+
+    Sweep: ``n_planes`` (None: ``plane_step_px`` pixels of disparity per plane, clamped to
+    ``[min_planes, max_planes]``), ``sweep_scale``, ``window`` (odd, pixels at the sweep scale),
+    ``top_k`` best sources averaged. Refinement: ``refine_window`` (odd, full-resolution pixels),
+    ``refine_steps`` half-plane offsets each side, ``propagation_radius`` (sweep-scale pixels),
+    ``surface_passes``. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
+    0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off), ``edge_trim_ratio``. Neighbours: the
+    keyword arguments of :func:`select_neighbours`. Geometric filter: ``min_consistent``,
+    ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
+    """
+
+    backend: Literal['cpu', 'colmap'] = 'cpu'
+    n_planes: int | None = None
+    min_planes: int = 48
+    max_planes: int = 192
+    plane_step_px: float = 1.5
+    sweep_scale: float = 0.5
+    window: int = 7
+    top_k: int = 2
+    refine_window: int = 7
+    refine_steps: int = 3
+    propagation_radius: int = 4
+    surface_passes: int = 1
+    min_zncc: float = 0.5
+    min_std: float = 2.0
+    min_margin: float = 0.02
+    edge_trim_px: int = 4
+    edge_trim_ratio: float = 1.08
+    max_neighbours: int = 4
+    min_angle_deg: float = 2.0
+    max_angle_deg: float = 30.0
+    target_angle_deg: float = 10.0
+    min_overlap: float = 0.3
+    max_view_angle_deg: float = 60.0
+    min_consistent: int = 2
+    max_reproj_px: float = 1.0
+    max_rel_depth_err: float = 0.01
+
+    def __post_init__(self) -> None:
+        def bad(name: str, rule: str) -> ValueError:
+            return ValueError(f'MvsOptions.{name} must be {rule}, got {getattr(self, name)!r}')
+
+        if self.backend not in ('cpu', 'colmap'):
+            raise bad('backend', "'cpu' or 'colmap'")
+        for name in ('window', 'refine_window'):
+            if getattr(self, name) < 3 or getattr(self, name) % 2 == 0:
+                raise bad(name, 'odd and >= 3')
+        if self.n_planes is not None and self.n_planes < 3:
+            raise bad('n_planes', '>= 3 or None')
+        if not 3 <= self.min_planes <= self.max_planes:
+            raise bad('min_planes', f'in [3, max_planes = {self.max_planes}]')
+        if not 0.1 <= self.sweep_scale <= 1.0:
+            raise bad('sweep_scale', 'in [0.1, 1]')
+        for name in ('top_k', 'refine_steps', 'max_neighbours', 'min_consistent'):
+            if getattr(self, name) < 1:
+                raise bad(name, '>= 1')
+        for name in ('propagation_radius', 'surface_passes', 'edge_trim_px', 'min_std', 'min_angle_deg'):
+            if getattr(self, name) < 0:
+                raise bad(name, '>= 0')
+        if not self.min_angle_deg < self.target_angle_deg < self.max_angle_deg:
+            raise bad('target_angle_deg', 'between min_angle_deg and max_angle_deg')
+        if not self.edge_trim_ratio > 1:
+            raise bad('edge_trim_ratio', '> 1')
+        for name in ('plane_step_px', 'max_reproj_px', 'max_rel_depth_err', 'max_view_angle_deg'):
+            if not getattr(self, name) > 0:
+                raise bad(name, 'positive')
+
+
+@dataclass(frozen=True, eq=False)
+class MvsResult:
+    """Depth of one reference view.
+
+    ``depth``: HxW float32 z-depth (m), 0 = unknown; ``confidence``: HxW float32 aggregated ZNCC of
+    the kept depth (0 where unknown); ``n_consistent``: HxW uint8 number of other views agreeing
+    (0 before :func:`geometric_filter`); ``photometric_depth``: the depth before the geometric
+    filter; ``neighbours``: the source views used (indices into the caller's list); ``reason``: ''
+    or why the depth is all zero (``REASON_*``); ``depth_range``: the (near, far) swept, metres;
+    ``n_planes``: the number of planes swept (0 when none were).
+    """
+
+    depth: NDArray[np.float32]
+    confidence: NDArray[np.float32]
+    n_consistent: NDArray[np.uint8]
+    photometric_depth: NDArray[np.float32]
+    neighbours: tuple[int, ...] = ()
+    reason: str = ''
+    depth_range: tuple[float, float] = (0.0, 0.0)
+    n_planes: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class MvsView:
+    """One registered, undistorted image: HxWx3 uint8 RGB (or HxW grey), its camera and ``T_wc``."""
+
+    rgb: NDArray[np.uint8]
+    camera: PinholeCamera
+    t_wc: NDArray[np.float64] = field(repr=False)
+
+
+# --------------------------------------------------------------------------------------------- kernels
+
+
+@njit(cache=True, parallel=True)
+def _box_stats(img, r):
+    """Window mean and variance of ``img`` over (2r+1)^2 boxes truncated at the image border."""
+    H, W = img.shape
+    mean = np.empty((H, W), np.float64)
+    var = np.empty((H, W), np.float64)
+    for y in prange(H):
+        ya, yb = max(0, y - r), min(H, y + r + 1)
+        c1 = np.zeros(W)
+        c2 = np.zeros(W)
+        for yy in range(ya, yb):
+            for x in range(W):
+                v = np.float64(img[yy, x])
+                c1[x] += v
+                c2[x] += v * v
+        s1 = 0.0
+        s2 = 0.0
+        for x in range(min(W, r)):
+            s1 += c1[x]
+            s2 += c2[x]
+        for x in range(W):
+            if x + r < W:
+                s1 += c1[x + r]
+                s2 += c2[x + r]
+            if x - r - 1 >= 0:
+                s1 -= c1[x - r - 1]
+                s2 -= c2[x - r - 1]
+            cnt = (yb - ya) * (min(W, x + r + 1) - max(0, x - r))
+            m = s1 / cnt
+            mean[y, x] = m
+            var[y, x] = max(s2 / cnt - m * m, 0.0)
+    return mean, var
+
+
+@njit(cache=True, fastmath=True)
+def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
+    """Rows ``ya:yb`` of one source warped into the reference at inverse depth ``base + off``.
+
+    A reference pixel (u, v) maps to ``a @ (u, v, 1) + rho * b`` (homogeneous source pixel), with
+    ``a = K_s R K_r^-1`` and ``b = K_s t``. Bilinear, border clamped; ``valid`` (rows ``y0:y1``) is
+    False where the centre falls outside the source or behind it, or ``rho <= 0``.
+    """
+    W = out.shape[1]
+    for y in range(ya, yb):
+        for x in range(W):
+            rho = base[y, x] + off
+            h0 = a[0, 0] * x + a[0, 1] * y + a[0, 2] + rho * b[0]
+            h1 = a[1, 0] * x + a[1, 1] * y + a[1, 2] + rho * b[1]
+            h2 = a[2, 0] * x + a[2, 1] * y + a[2, 2] + rho * b[2]
+            ok = h2 > 1e-9 and rho > 0.0
+            sx = h0 / h2 if ok else 0.0
+            sy = h1 / h2 if ok else 0.0
+            ok = ok and -0.5 <= sx <= ws - 0.5 and -0.5 <= sy <= hs - 0.5
+            sx = min(max(sx, 0.0), ws - 1.001)
+            sy = min(max(sy, 0.0), hs - 1.001)
+            x0 = int(sx)
+            yi = int(sy)
+            fx = sx - x0
+            fy = sy - yi
+            top = src[yi, x0] + fx * (src[yi, x0 + 1] - src[yi, x0])
+            bot = src[yi + 1, x0] + fx * (src[yi + 1, x0 + 1] - src[yi + 1, x0])
+            out[y - ya, x] = top + fy * (bot - top)
+            if y0 <= y < y1:
+                valid[y - y0, x] = ok
+
+
+@njit(cache=True, fastmath=True)
+def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn):
+    """Windowed ZNCC of the warped rows ``s`` (from row ``ya``) against the reference, rows y0:y1.
+
+    Running column and row sums (float64) over (2r+1)^2 boxes truncated at the image border, the
+    same boxes as :func:`_box_stats`. Invalid centres score -1, flat source windows 0.
+    """
+    H, W = ref.shape
+    c0 = np.zeros(W)
+    c1 = np.zeros(W)
+    c2 = np.zeros(W)
+    for yy in range(max(0, y0 - r), min(H, y0 + r + 1)):
+        for x in range(W):
+            v = np.float64(s[yy - ya, x])
+            c0[x] += v
+            c1[x] += v * v
+            c2[x] += v * ref[yy, x]
+    for y in range(y0, y1):
+        if y > y0:
+            yy = y + r
+            if yy < H:
+                for x in range(W):
+                    v = np.float64(s[yy - ya, x])
+                    c0[x] += v
+                    c1[x] += v * v
+                    c2[x] += v * ref[yy, x]
+            yy = y - r - 1
+            if yy >= 0:
+                for x in range(W):
+                    v = np.float64(s[yy - ya, x])
+                    c0[x] -= v
+                    c1[x] -= v * v
+                    c2[x] -= v * ref[yy, x]
+        nrow = min(H, y + r + 1) - max(0, y - r)
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for x in range(min(W, r)):
+            s0 += c0[x]
+            s1 += c1[x]
+            s2 += c2[x]
+        for x in range(W):
+            if x + r < W:
+                s0 += c0[x + r]
+                s1 += c1[x + r]
+                s2 += c2[x + r]
+            if x - r - 1 >= 0:
+                s0 -= c0[x - r - 1]
+                s1 -= c1[x - r - 1]
+                s2 -= c2[x - r - 1]
+            z = -1.0
+            if valid[y - y0, x]:
+                inv = 1.0 / (nrow * (min(W, x + r + 1) - max(0, x - r)))
+                ms = s0 * inv
+                den = vr[y, x] * (s1 * inv - ms * ms)
+                z = (s2 * inv - mr[y, x] * ms) / math.sqrt(den) if den > 1e-6 else 0.0
+            zn[y - y0, x] = z
+
+
+@njit(cache=True, parallel=True)
+def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, sep):
+    """Score the inverse-depth hypotheses ``base + offsets[k]`` (per-pixel base) for every pixel.
+
+    Per hypothesis and source: warp, windowed ZNCC; per hypothesis: mean of the ``top_k`` best
+    sources. Per pixel returns the winning hypothesis index (with a parabola offset in [-0.5, 0.5]
+    when ``fit``; -1 where nothing scored), its score, and the best score of hypotheses more than
+    ``sep`` indices away (-1 if none). Rows are processed in strips of ``strip`` rows in parallel
+    (one parallel region for the whole sweep).
+    """
+    H, W = ref.shape
+    n = srcs.shape[0]
+    P = offsets.shape[0]
+    k_top = min(top_k, n)
+    pos = np.empty((H, W), np.float32)
+    best = np.empty((H, W), np.float32)
+    second = np.empty((H, W), np.float32)
+    n_strips = (H + strip - 1) // strip
+    for si in prange(n_strips):
+        y0 = si * strip
+        y1 = min(H, y0 + strip)
+        ya = max(0, y0 - r)
+        yb = min(H, y1 + r)
+        rows = y1 - y0
+        s = np.empty((yb - ya, W), np.float32)
+        valid = np.empty((rows, W), np.bool_)
+        zn = np.empty((n, rows, W), np.float32)
+        vol = np.empty((P, rows, W), np.float32)
+        tops = np.empty(n, np.float32)
+        for h in range(P):
+            for i in range(n):
+                hs, ws = sizes[i, 0], sizes[i, 1]
+                _warp_rows(srcs[i], hs, ws, a[i], b[i], base, offsets[h], ya, yb, s, valid, y0, y1)
+                _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn[i])
+            for y in range(rows):
+                for x in range(W):
+                    for i in range(n):  # insertion into descending order
+                        z = zn[i, y, x]
+                        j = i
+                        while j > 0 and tops[j - 1] < z:
+                            tops[j] = tops[j - 1]
+                            j -= 1
+                        tops[j] = z
+                    acc = np.float32(0.0)
+                    for i in range(k_top):
+                        acc += tops[i]
+                    vol[h, y, x] = acc / k_top
+        for y in range(rows):
+            for x in range(W):
+                kb = 0
+                cb = vol[0, y, x]
+                for k in range(1, P):
+                    if vol[k, y, x] > cb:
+                        cb = vol[k, y, x]
+                        kb = k
+                c2 = np.float32(-1.0)
+                for k in range(P):
+                    if abs(k - kb) > sep and vol[k, y, x] > c2:
+                        c2 = vol[k, y, x]
+                off = 0.0
+                if fit and 0 < kb < P - 1:
+                    cm = vol[kb - 1, y, x]
+                    cp = vol[kb + 1, y, x]
+                    den = cm - 2.0 * cb + cp
+                    if den < -1e-9:
+                        off = min(max(0.5 * (cm - cp) / den, -0.5), 0.5)
+                pos[y0 + y, x] = kb + off if cb > -1.0 else -1.0
+                best[y0 + y, x] = cb
+                second[y0 + y, x] = c2
+    return pos, best, second
+
+
+@njit(cache=True, parallel=True)
+def _consistency(d_i, ki, ki_inv, r_ji, t_ji, d_j, kj, kj_inv, r_ij, t_ij, max_px, max_rel, count):
+    """Add 1 to ``count`` where view j's depth agrees with view i's after a forward-backward trip.
+
+    A pixel of i at depth d goes to 3D, into j, back to 3D at j's depth there (inverse depth
+    interpolated bilinearly when the 4 pixels around are known, else the nearest pixel's) and into
+    i: it agrees when it lands within ``max_px`` pixels of where it started with a z-depth within
+    ``max_rel`` (relative) of d. Depths must be finite (0 = unknown).
+    """
+    H, W = d_i.shape
+    hj, wj = d_j.shape
+    for y in prange(H):
+        for x in range(W):
+            d = d_i[y, x]
+            if not d > 0.0:
+                continue
+            px = (ki_inv[0, 0] * x + ki_inv[0, 1] * y + ki_inv[0, 2]) * d
+            py = (ki_inv[1, 0] * x + ki_inv[1, 1] * y + ki_inv[1, 2]) * d
+            qx = r_ji[0, 0] * px + r_ji[0, 1] * py + r_ji[0, 2] * d + t_ji[0]
+            qy = r_ji[1, 0] * px + r_ji[1, 1] * py + r_ji[1, 2] * d + t_ji[1]
+            qz = r_ji[2, 0] * px + r_ji[2, 1] * py + r_ji[2, 2] * d + t_ji[2]
+            if qz <= 1e-9:
+                continue
+            uj = (kj[0, 0] * qx + kj[0, 1] * qy) / qz + kj[0, 2]
+            vj = (kj[1, 1] * qy) / qz + kj[1, 2]
+            if not (-0.5 <= uj < wj - 0.5 and -0.5 <= vj < hj - 0.5):
+                continue
+            dj = d_j[math.floor(vj + 0.5), math.floor(uj + 0.5)]
+            if not dj > 0.0:
+                continue
+            x0 = min(max(math.floor(uj), 0), wj - 2)
+            y0 = min(max(math.floor(vj), 0), hj - 2)
+            q00, q01, q10, q11 = d_j[y0, x0], d_j[y0, x0 + 1], d_j[y0 + 1, x0], d_j[y0 + 1, x0 + 1]
+            if q00 > 0.0 and q01 > 0.0 and q10 > 0.0 and q11 > 0.0:  # bilinear in inverse depth
+                fx = min(max(uj - x0, 0.0), 1.0)
+                fy = min(max(vj - y0, 0.0), 1.0)
+                top = 1.0 / q00 + fx * (1.0 / q01 - 1.0 / q00)
+                bot = 1.0 / q10 + fx * (1.0 / q11 - 1.0 / q10)
+                dj = 1.0 / (top + fy * (bot - top))
+            sx = (kj_inv[0, 0] * uj + kj_inv[0, 1] * vj + kj_inv[0, 2]) * dj
+            sy = (kj_inv[1, 0] * uj + kj_inv[1, 1] * vj + kj_inv[1, 2]) * dj
+            bx = r_ij[0, 0] * sx + r_ij[0, 1] * sy + r_ij[0, 2] * dj + t_ij[0]
+            by = r_ij[1, 0] * sx + r_ij[1, 1] * sy + r_ij[1, 2] * dj + t_ij[1]
+            bz = r_ij[2, 0] * sx + r_ij[2, 1] * sy + r_ij[2, 2] * dj + t_ij[2]
+            if bz <= 1e-9:
+                continue
+            u2 = (ki[0, 0] * bx + ki[0, 1] * by) / bz + ki[0, 2]
+            v2 = (ki[1, 1] * by) / bz + ki[1, 2]
+            if (u2 - x) ** 2 + (v2 - y) ** 2 <= max_px * max_px and abs(bz - d) <= max_rel * d:
+                count[y, x] += 1
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def _grey(name: str, img: ArrayLike, cam: PinholeCamera) -> NDArray[np.float32]:
+    """HxW float32 grey levels 0..255 of an RGB or grey image, checked against the camera size."""
+    a = np.asarray(img)
+    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (1, 3)):
+        raise ValueError(f'{name} must be an HxW or HxWx3 image, got shape {a.shape}')
+    if a.shape[:2] != (cam.height, cam.width):
+        raise ValueError(
+            f'{name} is {a.shape[1]}x{a.shape[0]} pixels but its camera is {cam.width}x{cam.height}'
+        )
+    g = a.astype(np.float32)
+    if a.dtype.kind == 'f':
+        g = np.nan_to_num(g, nan=0.0) * (255.0 if float(np.nanmax(a, initial=0.0)) <= 1.0 else 1.0)
+    if a.ndim == 3 and a.shape[2] == 3:
+        g = cv2.cvtColor(g, cv2.COLOR_RGB2GRAY)
+    return np.ascontiguousarray(g.reshape(cam.height, cam.width))
+
+
+def _check_camera(name: str, cam: object) -> PinholeCamera:
+    if not isinstance(cam, PinholeCamera):
+        raise ValueError(f'{name} must be a PinholeCamera, got {type(cam).__name__}')
+    if cam.is_distorted:
+        raise ValueError(f'{name} has distortion {cam.d.tolist()}: undistort the images first')
+    return cam
+
+
+def _cameras(name: str, cams: PinholeCamera | Sequence[PinholeCamera], n: int) -> list[PinholeCamera]:
+    """``n`` checked cameras: one camera shared by all views, or one per view."""
+    seq = [cams] * n if isinstance(cams, PinholeCamera) else list(cams)
+    if len(seq) != n:
+        raise ValueError(f'{name} has {len(seq)} cameras for {n} views')
+    return [_check_camera(f'{name}[{i}]', c) for i, c in enumerate(seq)]
+
+
+def _poses(name: str, poses: ArrayLike, n: int | None = None) -> NDArray[np.float64]:
+    """Checked Nx4x4 camera-to-world poses (``n`` of them when given)."""
+    arr = np.asarray(poses, dtype=np.float64)
+    if arr.size == 0 and n == 0:
+        return np.zeros((0, 4, 4))
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
+        raise ValueError(f'{name} must be Nx4x4 camera-to-world matrices, got shape {arr.shape}')
+    if n is not None and len(arr) != n:
+        raise ValueError(f'{name} has {len(arr)} poses for {n} views')
+    for i, p in enumerate(arr):
+        validate_pose(p, field=f'{name}[{i}]')
+    return arr
+
+
+def _relative(t_wr: NDArray[np.float64], t_ws: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+    """Rotation and translation taking reference-camera points to source-camera points."""
+    t_sr = np.linalg.inv(t_ws) @ t_wr
+    return t_sr[:3, :3], t_sr[:3, 3]
+
+
+def _in_view(points_w: NDArray[np.float64], camera: PinholeCamera, t_wc: NDArray[np.float64]):
+    """(mask of world points that project inside the image in front of the camera, their z-depths)."""
+    pc = (points_w - t_wc[:3, 3]) @ t_wc[:3, :3]
+    uv, z = camera.project(pc)
+    with np.errstate(invalid='ignore'):
+        ok = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= camera.width - 0.5)
+        ok &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= camera.height - 0.5)
+    return ok, z
+
+
+def _points(points_w: ArrayLike) -> NDArray[np.float64]:
+    pts = np.asarray(points_w, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'points_w must be Nx3 world points, got shape {pts.shape}')
+    return pts[np.all(np.isfinite(pts), axis=1)]
+
+
+def _grid_points(camera: PinholeCamera, t_wc: NDArray[np.float64], depth: float, grid: int) -> NDArray:
+    """World points of a ``grid`` x ``grid`` pixel lattice of the view at z-depth ``depth``."""
+    us = np.linspace(0, camera.width - 1, grid)
+    vs = np.linspace(0, camera.height - 1, grid)
+    uv = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2)
+    return camera.backproject(uv, np.full(len(uv), depth)) @ t_wc[:3, :3].T + t_wc[:3, 3]
+
+
+def _angle_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angle in degrees between the rows (last axis) of ``a`` and ``b``."""
+    c = np.sum(a * b, axis=-1) / np.maximum(np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1), 1e-12)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _empty(shape: tuple[int, int], reason: str, neighbours: Sequence[int] = (), rng=(0.0, 0.0)) -> MvsResult:
+    z = np.zeros(shape, np.float32)
+    return MvsResult(z, z.copy(), np.zeros(shape, np.uint8), z.copy(), tuple(neighbours), reason, rng)
+
+
+class _Stack:
+    """Grey reference and source images at one scale, with the maps of :func:`_warp_rows`."""
+
+    def __init__(self, ref, ref_cam: PinholeCamera, t_wr, greys, cams, t_ws) -> None:
+        self.ref = ref
+        n = len(greys)
+        self.srcs = np.zeros((n, max(g.shape[0] for g in greys), max(g.shape[1] for g in greys)), np.float32)
+        self.sizes = np.zeros((n, 2), np.int64)
+        self.a = np.empty((n, 3, 3))
+        self.b = np.empty((n, 3))
+        k_inv = np.linalg.inv(ref_cam.k)
+        for i, (g, c, t) in enumerate(zip(greys, cams, t_ws)):
+            self.srcs[i, : g.shape[0], : g.shape[1]] = g
+            self.sizes[i] = g.shape
+            r, tt = _relative(t_wr, t)
+            self.a[i] = c.k @ r @ k_inv
+            self.b[i] = c.k @ tt
+
+    def disparity_span(self, rho: tuple[float, float]) -> float:
+        """Largest distance (px) in any source between a pixel's matches at the two inverse depths."""
+        H, W = self.ref.shape
+        us, vs = np.meshgrid(np.linspace(0, W - 1, 7), np.linspace(0, H - 1, 7))
+        p = np.stack([us.ravel(), vs.ravel(), np.ones(us.size)])
+        span = 0.0
+        for a, b in zip(self.a, self.b):
+            h = [a @ p + r * b[:, None] for r in rho]
+            ok = (h[0][2] > 1e-9) & (h[1][2] > 1e-9)
+            if ok.any():
+                d = h[0][:2, ok] / h[0][2, ok] - h[1][:2, ok] / h[1][2, ok]
+                span = max(span, float(np.linalg.norm(d, axis=0).max()))
+        return span
+
+    def sweep(self, stats, base: NDArray, offsets: ArrayLike, win: int, o: MvsOptions, fit: bool = True):
+        """(position, best, second-best) of :func:`_sweep` for the hypotheses ``base + offsets[k]``.
+
+        Strips are handed out one at a time (dynamic scheduling) so that a thread descheduled on a
+        busy machine does not hold the others up.
+        """
+        base = np.ascontiguousarray(base, dtype=np.float32)
+        offsets = np.asarray(offsets, dtype=np.float32).reshape(-1)
+        with numba.parallel_chunksize(1):
+            return _sweep(
+                self.ref, stats[0], stats[1], self.srcs, self.sizes, self.a, self.b, base, offsets,
+                win // 2, o.top_k, _STRIP_ROWS, fit, 2,
+            )  # fmt: skip
+
+
+def _scaled(cam: PinholeCamera, s: float) -> PinholeCamera:
+    """The camera of the image resized to ``round(s * size)`` pixels (exact per-axis factors)."""
+    w, h = max(2, round(cam.width * s)), max(2, round(cam.height * s))
+    return cam.scaled(w / cam.width, h / cam.height)
+
+
+def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions):
+    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason."""
+    H, W = ref.shape
+    rho_near, rho_far = 1.0 / near, 1.0 / far
+    s = o.sweep_scale
+    if s < 1:
+        cam_s = _scaled(ref_cam, s)
+        cams_s = [_scaled(c, s) for c in cams]
+        ref_s = cv2.resize(ref, (cam_s.width, cam_s.height), interpolation=cv2.INTER_AREA)
+        greys_s = [
+            cv2.resize(g, (c.width, c.height), interpolation=cv2.INTER_AREA) for g, c in zip(greys, cams_s)
+        ]
+        coarse = _Stack(ref_s, cam_s, t_wr, greys_s, cams_s, t_ws)
+        fine = _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
+    else:
+        coarse = fine = _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
+    span = coarse.disparity_span((rho_near, rho_far))
+    if span < 1.0:
+        return REASON_NO_PARALLAX
+    n_planes = o.n_planes or int(min(max(math.ceil(span / o.plane_step_px) + 1, o.min_planes), o.max_planes))
+    step = (rho_far - rho_near) / (n_planes - 1)
+
+    # 1. sweep
+    planes = rho_near + step * np.arange(n_planes)
+    stats_s = _box_stats(coarse.ref, o.window // 2)
+    pos, best, second = coarse.sweep(stats_s, np.zeros(coarse.ref.shape), planes, o.window, o)
+    rho_s = np.where(pos >= 0, rho_near + pos * step, 0.0).astype(np.float32)
+    bad_s = (pos < 0.5) | (pos > n_planes - 1.5) | (best - second < o.min_margin)
+
+    # 2. refine at full resolution
+    stats = _box_stats(ref, o.refine_window // 2)
+
+    def up(a: NDArray) -> NDArray:
+        return cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if s < 1 else a
+
+    base = up(rho_s)
+    _, score, _ = fine.sweep(stats, base, [0.0], o.refine_window, o, False)
+    cands = (
+        [np.roll(rho_s, (dy, dx), axis=(0, 1)) for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0))]
+        if s < 1
+        else []
+    )
+    if o.propagation_radius > 0:
+        ker = np.ones((2 * o.propagation_radius + 1,) * 2, np.uint8)
+        cands += [cv2.dilate(rho_s, ker), cv2.erode(np.where(rho_s > 0, rho_s, np.float32(1e9)), ker)]
+    for c in cands:
+        c = up(c)
+        _, sc, _ = fine.sweep(stats, c, [0.0], o.refine_window, o, False)
+        better = sc > score
+        base = np.where(better, c, base)
+        score = np.where(better, sc, score)
+    half = 0.5 * step
+    pos, score, _ = fine.sweep(
+        stats, base, np.arange(-o.refine_steps, o.refine_steps + 1) * half, o.refine_window, o
+    )
+    valid = pos >= 0
+    rho = base + (pos - o.refine_steps) * np.float32(half)
+    for _ in range(o.surface_passes):
+        base = cv2.medianBlur(np.where(valid, rho, 0).astype(np.float32), 5)
+        pos, score, _ = fine.sweep(stats, base, np.arange(-2, 3) * 0.25 * half, o.refine_window, o)
+        valid &= pos >= 0
+        rho = base + (pos - 2) * np.float32(0.25 * half)
+
+    # 3. reject
+    bad = up(bad_s.astype(np.uint8)).astype(bool) | ~valid | ~(rho > rho_far * 0.999)
+    bad |= (score < o.min_zncc) | (stats[1] < o.min_std**2)
+    if o.edge_trim_px > 0:
+        ker = np.ones((2 * o.edge_trim_px + 1,) * 2, np.uint8)
+        bad |= cv2.erode(np.where(bad, 1e9, rho).astype(np.float32), ker) * o.edge_trim_ratio < rho
+    depth = np.where(bad, 0.0, 1.0 / np.where(bad, 1.0, rho)).astype(np.float32)
+    return depth, np.where(bad, 0.0, score).astype(np.float32), n_planes
+
+
+# --------------------------------------------------------------------------------------------- public
+
+
+def depth_range_from_points(
+    points_w: ArrayLike,
+    camera: PinholeCamera,
+    t_wc: ArrayLike,
+    *,
+    percentiles: tuple[float, float] = (1.0, 99.0),
+    margin: tuple[float, float] = (0.75, 1.5),
+    min_points: int = 10,
+) -> tuple[float, float] | None:
+    """(near, far) metres from the z-depths of the world points ``points_w`` (Nx3) seen in the view.
+
+    The ``percentiles`` of the depths of points inside the image, times ``margin``; None when fewer
+    than ``min_points`` points are visible.
+    """
+    pts = _points(points_w)
+    ok, z = _in_view(pts, camera, validate_pose(t_wc, field='t_wc'))
+    if ok.sum() < min_points:
+        return None
+    lo, hi = np.percentile(z[ok], percentiles)
+    return float(lo * margin[0]), float(hi * margin[1])
+
+
+def select_neighbours(
+    ref_index: int,
+    poses: ArrayLike,
+    cameras: PinholeCamera | Sequence[PinholeCamera],
+    *,
+    points_w: ArrayLike | None = None,
+    depth_range: tuple[float, float] | None = None,
+    max_neighbours: int = 4,
+    min_angle_deg: float = 2.0,
+    max_angle_deg: float = 30.0,
+    target_angle_deg: float = 10.0,
+    min_overlap: float = 0.3,
+    max_view_angle_deg: float = 60.0,
+) -> list[int]:
+    """Indices of up to ``max_neighbours`` source views for view ``ref_index``, best first.
+
+    Rule: the reference's scene is represented by probe points, its visible sparse ``points_w``
+    (at least 10; subsampled to ~2000), else a 9x9 pixel grid at the geometric mean of
+    ``depth_range``. A candidate view is kept when
+
+    * its optical axis is within ``max_view_angle_deg`` of the reference's (not facing away),
+    * at least ``min_overlap`` of the probe points project into it (frustum overlap), and
+    * the median triangulation angle at the probe points it sees, between the rays from the two
+      camera centres, lies in ``[min_angle_deg, max_angle_deg]``.
+
+    Score = overlap x ``exp(-((angle - target) / target)^2 / 2)``. Views are picked greedily by
+    score, a candidate's score scaled by ``min(1, a / min_angle_deg)`` where ``a`` is the smallest
+    angle, seen from the probe centroid, between it and an already picked view (the picks spread out
+    instead of repeating one baseline). Raises ValueError without probe points.
+    """
+    t_all = _poses('poses', poses)
+    n = len(t_all)
+    if not 0 <= ref_index < n:
+        raise ValueError(f'ref_index {ref_index} is out of range for {n} poses')
+    cams = _cameras('cameras', cameras, n)
+    t_ref = t_all[ref_index]
+    probes = None
+    if points_w is not None:
+        pts = _points(points_w)
+        ok, _ = _in_view(pts, cams[ref_index], t_ref)
+        if ok.sum() >= 10:
+            probes = pts[ok][:: max(1, int(ok.sum()) // 2000)]
+    if probes is None:
+        if depth_range is None:
+            raise ValueError('select_neighbours needs depth_range or points_w with 10 or more points in view')
+        probes = _grid_points(cams[ref_index], t_ref, math.sqrt(depth_range[0] * depth_range[1]), 9)
+    centroid = probes.mean(axis=0)
+    cands: list[tuple[float, int]] = []
+    for j in range(n):
+        t_j = t_all[j]
+        if j == ref_index or _angle_deg(t_ref[:3, 2], t_j[:3, 2]) > max_view_angle_deg:
+            continue
+        vis, _ = _in_view(probes, cams[j], t_j)
+        overlap = float(vis.mean())
+        if overlap < min_overlap or not vis.any():
+            continue
+        ang = float(np.median(_angle_deg(t_ref[:3, 3] - probes[vis], t_j[:3, 3] - probes[vis])))
+        if min_angle_deg <= ang <= max_angle_deg:
+            cands.append((overlap * math.exp(-0.5 * ((ang - target_angle_deg) / target_angle_deg) ** 2), j))
+    picked: list[int] = []
+    while cands and len(picked) < max_neighbours:
+        scores = []
+        for s, j in cands:
+            for k in picked:
+                a = float(_angle_deg(t_all[j][:3, 3] - centroid, t_all[k][:3, 3] - centroid))
+                s *= min(1.0, a / max(min_angle_deg, 1e-6))
+            scores.append(s)
+        picked.append(cands.pop(int(np.argmax(scores)))[1])
+    return picked
+
+
+def mvs_depth(
+    ref_rgb: ArrayLike,
+    ref_cam: PinholeCamera,
+    ref_pose: ArrayLike,
+    src_rgbs: Sequence[ArrayLike],
+    src_cams: PinholeCamera | Sequence[PinholeCamera],
+    src_poses: ArrayLike,
+    *,
+    depth_range: tuple[float, float] | None = None,
+    points_w: ArrayLike | None = None,
+    options: MvsOptions | None = None,
+) -> MvsResult:
+    """Photometric depth of the reference view from its source views (see the module docstring).
+
+    ``depth_range`` (near, far) in metres, or ``points_w`` (Nx3 world points, e.g. SfM points) to
+    derive it with :func:`depth_range_from_points`. ``src_cams`` is one camera for all sources or
+    one per source. The result's ``depth`` equals its ``photometric_depth`` (no geometric filter)
+    and ``neighbours`` lists the sources that overlap the reference. An all-zero result carries a
+    ``reason`` (``REASON_*``); bad arguments raise ValueError naming them.
+    """
+    o = options or MvsOptions()
+    ref_cam = _check_camera('ref_cam', ref_cam)
+    ref = _grey('ref_rgb', ref_rgb, ref_cam)
+    t_wr = validate_pose(ref_pose, field='ref_pose')
+    if isinstance(src_rgbs, np.ndarray) and src_rgbs.ndim < 3:
+        raise ValueError(f'src_rgbs must be a sequence of images, got an array of shape {src_rgbs.shape}')
+    src_list = list(src_rgbs)
+    n = len(src_list)
+    cams = _cameras('src_cams', src_cams, n)
+    t_ws = _poses('src_poses', src_poses, n)
+    greys = [_grey(f'src_rgbs[{i}]', im, c) for i, (im, c) in enumerate(zip(src_list, cams))]
+    if depth_range is not None:
+        near, far = (float(v) for v in depth_range)
+        if not (0 < near < far and math.isfinite(far)):
+            raise ValueError(f'depth_range must be (near, far) with 0 < near < far < inf, got {depth_range}')
+    elif points_w is not None:
+        rng = depth_range_from_points(points_w, ref_cam, t_wr)
+        if rng is None:
+            return _empty(ref.shape, REASON_NO_DEPTH_RANGE)
+        near, far = rng
+    else:
+        raise ValueError('mvs_depth needs depth_range or points_w')
+    if n == 0:
+        return _empty(ref.shape, REASON_NO_SOURCES, (), (near, far))
+    if o.backend == 'colmap':
+        views = [MvsView(np.asarray(ref_rgb), ref_cam, t_wr)]
+        views += [MvsView(np.asarray(im), c, t) for im, c, t in zip(src_list, cams, t_ws)]
+        r = _colmap_depth_maps(views, [list(range(1, n + 1))], (near, far), o)[0]
+        return replace(r, depth=r.photometric_depth, n_consistent=np.zeros(ref.shape, np.uint8))
+    # Sources that see some of the reference frustum between near and far.
+    probes = np.concatenate([_grid_points(ref_cam, t_wr, d, 7) for d in (near, math.sqrt(near * far), far)])
+    keep = [i for i in range(n) if _in_view(probes, cams[i], t_ws[i])[0].any()]
+    if not keep:
+        return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
+    out = _sweep_and_refine(
+        ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o
+    )
+    if isinstance(out, str):
+        return _empty(ref.shape, out, keep, (near, far))
+    depth, conf, n_planes = out
+    zero = np.zeros(ref.shape, np.uint8)
+    return MvsResult(depth, conf, zero, depth.copy(), tuple(keep), '', (near, far), n_planes)
+
+
+def geometric_filter(
+    depths: Sequence[ArrayLike],
+    cams: PinholeCamera | Sequence[PinholeCamera],
+    poses: ArrayLike,
+    *,
+    pairs: Sequence[Sequence[int]] | None = None,
+    min_consistent: int = 2,
+    max_reproj_px: float = 1.0,
+    max_rel_depth_err: float = 0.01,
+) -> tuple[list[NDArray[np.float32]], list[NDArray[np.uint8]]]:
+    """Keep the depths that at least ``min_consistent`` other views' depth maps confirm.
+
+    A pixel of view i at depth d goes to 3D, into view j (``pairs[i]``, default all others) where
+    j's depth at that sub-pixel position (bilinear in inverse depth where the 4 pixels around are
+    known, else the nearest pixel's) takes it back to 3D and into i: j agrees when it lands within
+    ``max_reproj_px`` pixels of where it started with a z-depth within ``max_rel_depth_err`` x d.
+    Views with fewer than ``min_consistent`` partners need all of them (at least one). Returns the
+    filtered depths (0 = unknown) and the per-pixel agreeing-view counts (uint8). Depth 0, NaN or
+    inf counts as unknown.
+    """
+    n = len(depths)
+    cam_l = _cameras('cams', cams, n)
+    t = _poses('poses', poses, n)
+    ds = []
+    for i, (d, c) in enumerate(zip(depths, cam_l)):
+        a = np.asarray(d, dtype=np.float32)
+        if a.shape != (c.height, c.width):
+            raise ValueError(f'depths[{i}] has shape {a.shape}, its camera is {c.width}x{c.height}')
+        ds.append(np.ascontiguousarray(np.where(np.isfinite(a) & (a > 0), a, 0.0), dtype=np.float32))
+    if pairs is None:
+        pairs = [[j for j in range(n) if j != i] for i in range(n)]
+    if len(pairs) != n:
+        raise ValueError(f'pairs has {len(pairs)} entries for {n} depth maps')
+    out_d, out_c = [], []
+    for i in range(n):
+        count = np.zeros(ds[i].shape, np.uint8)
+        others = sorted({int(j) for j in pairs[i]} - {i})
+        for j in others:
+            if not 0 <= j < n:
+                raise ValueError(f'pairs[{i}] names view {j}, there are {n}')
+            r_ji, t_ji = _relative(t[i], t[j])
+            r_ij, t_ij = _relative(t[j], t[i])
+            ki, kj = cam_l[i].k, cam_l[j].k
+            _consistency(
+                ds[i], ki, np.linalg.inv(ki), r_ji, t_ji, ds[j], kj, np.linalg.inv(kj), r_ij, t_ij,
+                float(max_reproj_px), float(max_rel_depth_err), count,
+            )  # fmt: skip
+        keep = count >= max(1, min(min_consistent, len(others)))
+        out_d.append(np.where(keep, ds[i], 0.0).astype(np.float32))
+        out_c.append(count)
+    return out_d, out_c
+
+
+def compute_depth_maps(
+    views: Sequence[MvsView],
+    *,
+    options: MvsOptions | None = None,
+    points_w: ArrayLike | None = None,
+    depth_range: tuple[float, float] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[MvsResult]:
+    """Geometrically filtered depth maps of every view (COLMAP's "geometric" depth maps).
+
+    Per view: neighbours by :func:`select_neighbours` (``options``' neighbour settings), depth by
+    :func:`mvs_depth` (range ``depth_range``, else from the view's visible ``points_w``), then
+    :func:`geometric_filter` between views that are neighbours either way. A view without
+    neighbours gets an all-zero result with ``reason`` ``no_sources`` (or ``no_depth_range``).
+    ``progress(done, total)`` is called after each view.
+    """
+    o = options or MvsOptions()
+    views = list(views)
+    for i, v in enumerate(views):
+        if not isinstance(v, MvsView):
+            raise ValueError(f'views[{i}] must be an MvsView, got {type(v).__name__}')
+    n = len(views)
+    if n == 0:
+        return []
+    if depth_range is None and points_w is None:
+        raise ValueError('compute_depth_maps needs depth_range or points_w')
+    cams = [_check_camera(f'views[{i}].camera', v.camera) for i, v in enumerate(views)]
+    poses = _poses(
+        'views[].t_wc', np.stack([np.asarray(v.t_wc, dtype=np.float64).reshape(4, 4) for v in views])
+    )
+    for i, (v, c) in enumerate(zip(views, cams)):
+        _grey(f'views[{i}].rgb', v.rgb, c)
+    kw = {
+        'max_neighbours': o.max_neighbours,
+        'min_angle_deg': o.min_angle_deg,
+        'max_angle_deg': o.max_angle_deg,
+        'target_angle_deg': o.target_angle_deg,
+        'min_overlap': o.min_overlap,
+        'max_view_angle_deg': o.max_view_angle_deg,
+    }
+    nbrs: list[list[int]] = []
+    no_range = [False] * n
+    for i in range(n):
+        if depth_range is None and depth_range_from_points(points_w, cams[i], poses[i]) is None:
+            no_range[i] = True
+            nbrs.append([])
+        else:
+            nbrs.append(select_neighbours(i, poses, cams, points_w=points_w, depth_range=depth_range, **kw))
+    if o.backend == 'colmap':
+        rng = depth_range
+        if rng is None:
+            ranges = [depth_range_from_points(points_w, c, p) for c, p in zip(cams, poses)]
+            ranges = [r for r in ranges if r is not None]
+            if not ranges:
+                raise ValueError('points_w: no view sees 10 or more of them, pass depth_range')
+            rng = (min(r[0] for r in ranges), max(r[1] for r in ranges))
+        return _colmap_depth_maps(views, nbrs, rng, o)
+    results: list[MvsResult] = []
+    for i, v in enumerate(views):
+        if not nbrs[i]:
+            reason = REASON_NO_DEPTH_RANGE if no_range[i] else REASON_NO_SOURCES
+            results.append(_empty((cams[i].height, cams[i].width), reason))
+        else:
+            js = nbrs[i]
+            r = mvs_depth(
+                v.rgb, cams[i], poses[i], [views[j].rgb for j in js], [cams[j] for j in js], poses[js],
+                depth_range=depth_range, points_w=points_w, options=o,
+            )  # fmt: skip
+            results.append(replace(r, neighbours=tuple(js[k] for k in r.neighbours)))
+        if progress is not None:
+            progress(i + 1, n)
+    pairs = [
+        sorted(set(results[i].neighbours) | {j for j in range(n) if i in results[j].neighbours})
+        for i in range(n)
+    ]
+    filt, counts = geometric_filter(
+        [r.photometric_depth for r in results], cams, poses, pairs=pairs,
+        min_consistent=o.min_consistent, max_reproj_px=o.max_reproj_px, max_rel_depth_err=o.max_rel_depth_err,
+    )  # fmt: skip
+    return [
+        replace(r, depth=d, confidence=np.where(d > 0, r.confidence, 0.0).astype(np.float32), n_consistent=c)
+        for r, d, c in zip(results, filt, counts)
+    ]
+
+
+# --------------------------------------------------------------------------------------------- COLMAP
+
+
+def _read_colmap_array(path: Path) -> NDArray[np.float32]:
+    """A COLMAP dense ``.bin`` array ("width&height&channels&" then float32 data) as HxW or HxWxC."""
+    data = path.read_bytes()
+    end = 0
+    for _ in range(3):
+        end = data.index(b'&', end) + 1
+    w, h, c = (int(v) for v in data[: end - 1].split(b'&'))
+    arr = np.frombuffer(data, np.float32, count=w * h * c, offset=end).reshape(c, h, w).transpose(1, 2, 0)
+    return arr[..., 0].copy() if c == 1 else arr.copy()
+
+
+def _colmap_depth_maps(
+    views: Sequence[MvsView], nbrs: Sequence[Sequence[int]], depth_range: tuple[float, float], o: MvsOptions
+) -> list[MvsResult]:
+    """Depth maps from ``pycolmap.patch_match_stereo`` (CUDA builds only) on a temporary workspace.
+
+    The workspace holds the images (PNG), a sparse model with the known PINHOLE cameras and poses
+    (COLMAP's pixel centres are at +0.5) and ``patch-match.cfg`` naming each view's neighbours.
+    ``photometric_depth`` is COLMAP's photometric map, ``depth`` its geometric one; COLMAP does not
+    report per-pixel consistency counts, so ``n_consistent`` is ``min_consistent`` where kept.
+    """
+    import pycolmap
+
+    if not getattr(pycolmap, 'has_cuda', False):
+        raise MvsBackendUnavailable(
+            "MVS backend 'colmap' runs pycolmap.patch_match_stereo, which needs CUDA: "
+            "pycolmap was built without CUDA; use backend='cpu'"
+        )
+    with tempfile.TemporaryDirectory(prefix='ibr_mvs_') as tmp:
+        ws = Path(tmp)
+        for sub in (
+            'images',
+            'sparse',
+            'stereo/depth_maps',
+            'stereo/normal_maps',
+            'stereo/consistency_graphs',
+        ):
+            (ws / sub).mkdir(parents=True)
+        rec = pycolmap.Reconstruction()
+        names = [f'{i:05d}.png' for i in range(len(views))]
+        for i, v in enumerate(views):
+            c = v.camera
+            rec.add_camera_with_trivial_rig(
+                pycolmap.Camera(
+                    model='PINHOLE', width=c.width, height=c.height, camera_id=i + 1,
+                    params=[c.fx, c.fy, c.cx + 0.5, c.cy + 0.5],
+                )
+            )  # fmt: skip
+            rgb = np.asarray(v.rgb)
+            cv2.imwrite(str(ws / 'images' / names[i]), rgb[..., ::-1] if rgb.ndim == 3 else rgb)
+            t_cw = np.linalg.inv(np.asarray(v.t_wc, dtype=np.float64))
+            pose = pycolmap.Rigid3d(pycolmap.Rotation3d(t_cw[:3, :3]), t_cw[:3, 3])
+            rec.add_image_with_trivial_frame(
+                pycolmap.Image(name=names[i], camera_id=i + 1, image_id=i + 1), pose
+            )
+        rec.write(str(ws / 'sparse'))
+        lines = []
+        for i, js in enumerate(nbrs):
+            if js:
+                lines += [names[i], ', '.join(names[j] for j in js)]
+        (ws / 'stereo' / 'patch-match.cfg').write_text('\n'.join(lines) + '\n')
+        pm = pycolmap.PatchMatchOptions()
+        pm.depth_min, pm.depth_max = float(depth_range[0]), float(depth_range[1])
+        pm.geom_consistency = True
+        pm.filter = True
+        pm.filter_min_num_consistent = o.min_consistent
+        pm.filter_geom_consistency_max_cost = o.max_reproj_px
+        pycolmap.patch_match_stereo(ws, workspace_format='COLMAP', options=pm)
+        out = []
+        for i, v in enumerate(views):
+            shape = (v.camera.height, v.camera.width)
+            maps = []
+            for kind in ('geometric', 'photometric'):
+                f = ws / 'stereo' / 'depth_maps' / f'{names[i]}.{kind}.bin'
+                a = (
+                    np.nan_to_num(_read_colmap_array(f), nan=0.0)
+                    if f.exists()
+                    else np.zeros(shape, np.float32)
+                )
+                maps.append(np.where(a > 0, a, 0.0).astype(np.float32))
+            geo, pho = maps
+            reason = '' if nbrs[i] else REASON_NO_SOURCES
+            kept = (geo > 0).astype(np.uint8) * np.uint8(min(o.min_consistent, 255))
+            out.append(
+                MvsResult(geo, np.zeros(shape, np.float32), kept, pho, tuple(nbrs[i]), reason, depth_range)
+            )
+        return out

@@ -1,0 +1,349 @@
+"""Per-view MVS depth: accuracy on synthetic ground truth, geometry, neighbours, filter, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ibr_ros.core import mvs
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry import look_at
+from ibr_ros.core.mvs import MvsBackendUnavailable, MvsOptions, MvsView
+from ibr_ros.core.synth import (
+    LABEL_BUILDING_WALL,
+    SceneConfig,
+    build_scene,
+    flight_camera,
+    make_trajectory,
+    render_view,
+    safe_altitude_range,
+)
+
+# (seed, trajectory kind): oblique flights at 15-80 m over the procedural town.
+SCENES = [(1, 'orbit'), (2, 'lawnmower'), (3, 'forward'), (4, 'orbit')]
+SIZE = (480, 270)
+N_VIEWS = 5
+SPACING_S = 2.0  # 16 m between views at 8 m/s
+
+
+def sparse_points(frames, cam: PinholeCamera, poses, rng, n: int = 300) -> np.ndarray:
+    """World points of ``n`` random non-sky pixels per view (stand-in for SfM points)."""
+    pts = []
+    for f, t in zip(frames, poses):
+        yx = np.argwhere(np.isfinite(f.depth))
+        yx = yx[rng.choice(len(yx), n, replace=False)]
+        pc = cam.backproject(yx[:, ::-1].astype(float), f.depth[yx[:, 0], yx[:, 1]])
+        pts.append(pc @ t[:3, :3].T + t[:3, 3])
+    return np.concatenate(pts)
+
+
+@pytest.fixture(scope='module')
+def flights():
+    """Per scene: frames (GT), cameras, poses, sparse points and compute_depth_maps results."""
+    out = {}
+    for seed, kind in SCENES:
+        cfg = SceneConfig(seed=seed)
+        scene = build_scene(cfg)
+        traj = make_trajectory(
+            kind, duration_s=N_VIEWS * SPACING_S, fps=1 / SPACING_S, seed=seed,
+            altitude_range=safe_altitude_range(cfg), extent_m=cfg.extent_m,
+        )  # fmt: skip
+        cam = flight_camera(SIZE, 70.0)
+        frames = [render_view(scene, cam, s.t_wc) for s in traj]
+        poses = np.stack([s.t_wc for s in traj])
+        pts = sparse_points(frames, cam, poses, np.random.default_rng(seed))
+        results = mvs.compute_depth_maps(
+            [MvsView(f.rgb, cam, p) for f, p in zip(frames, poses)], points_w=pts
+        )
+        out[(seed, kind)] = (frames, cam, poses, pts, results)
+    return out
+
+
+def scores(frames, depths) -> tuple[float, float, int]:
+    """(fraction of output pixels within 5% of GT, fraction of non-sky pixels with output, sky outputs)."""
+    good = n_out = n_ground = sky_out = 0
+    for f, d in zip(frames, depths):
+        out = d > 0
+        ok = out & ~f.sky
+        err = np.abs(d[ok] - f.depth[ok]) / f.depth[ok]
+        good += int((err < 0.05).sum())
+        n_out += int(out.sum())
+        n_ground += int((~f.sky).sum())
+        sky_out += int((out & f.sky).sum())
+    return good / max(n_out, 1), n_out / n_ground, sky_out
+
+
+# --------------------------------------------------------------------------------------------- accuracy
+
+
+@pytest.mark.parametrize(('seed', 'kind'), SCENES)
+def test_accuracy_on_synthetic_ground_truth(flights, seed, kind):
+    frames, _, _, _, results = flights[(seed, kind)]
+    acc, comp, sky = scores(frames, [r.depth for r in results])
+    acc_p, comp_p, _ = scores(frames, [r.photometric_depth for r in results])
+    print(f'{kind}{seed}: geometric {acc:.3f} within 5%, completeness {comp:.3f}; '
+          f'photometric {acc_p:.3f}, {comp_p:.3f}')  # fmt: skip
+    assert acc >= 0.90  # the target: >= 90% of the output within 5% of the true depth
+    assert comp >= 0.2  # semi-dense: low-texture walls, edges, occlusions and far hills are holes
+    assert acc_p >= 0.85  # before the geometric filter
+    assert acc >= acc_p
+    assert comp < comp_p  # the filter removes depth, mostly wrong depth
+    assert sky == 0
+    for r in results:
+        assert r.reason == ''
+        assert len(r.neighbours) >= 2
+        assert r.depth.dtype == np.float32
+        assert r.confidence.dtype == np.float32
+        assert r.n_consistent.dtype == np.uint8
+        assert np.all(r.n_consistent[r.depth > 0] >= 2)
+        assert np.all(r.confidence[r.depth > 0] >= MvsOptions().min_zncc)
+        assert np.all(r.confidence[r.depth == 0] == 0)
+        assert np.all(np.isfinite(r.depth))
+        assert r.depth.min() >= 0
+
+
+def test_mean_completeness(flights):
+    comps = [scores(v[0], [r.depth for r in v[4]])[1] for v in flights.values()]
+    assert np.mean(comps) >= 0.3
+
+
+def test_low_texture_walls_are_holes(flights):
+    """Uniform facades have no depth (the paper's MVS holes) rather than wrong depth."""
+    walls = out = 0
+    for frames, _, _, _, results in flights.values():
+        for f, r in zip(frames, results):
+            flat = (f.label == LABEL_BUILDING_WALL) & (mvs._box_stats(f.rgb.mean(-1), 3)[1] < 1.0)
+            walls += int(flat.sum())
+            out += int((flat & (r.depth > 0)).sum())
+    assert walls > 0
+    assert out <= 0.02 * walls
+
+
+# --------------------------------------------------------------------------------------------- geometry
+
+
+def plane_views(size=(160, 120), depth=50.0, flat_half=False):
+    """A fronto-parallel plane at ``depth`` m with a sum-of-sines texture (exact, point-sampled), seen
+    by a reference at the origin and 4 cameras shifted by 3 m; with ``flat_half`` its x < 0 half is
+    uniform grey."""
+    cam = PinholeCamera.from_fov(size[0], size[1], 60.0)
+    rng = np.random.default_rng(0)
+    waves = rng.uniform(-2.5, 2.5, (8, 2)), rng.uniform(0, 2 * np.pi, 8)
+    rays = cam.pixel_rays()
+
+    def render(t_wc: np.ndarray) -> np.ndarray:
+        xy = t_wc[:2, 3] + depth * rays[..., :2]
+        grey = 128 + 12 * np.sin(xy @ waves[0].T + waves[1]).sum(-1)
+        if flat_half:
+            grey[xy[..., 0] < 0] = 120.0
+        return np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, -1)
+
+    t_wr = np.eye(4)
+    poses = []
+    for dx, dy in ((3, 0), (-3, 0), (0, 3), (0, -3)):
+        t_ws = np.eye(4)
+        t_ws[:3, 3] = [dx, dy, 0.0]
+        poses.append(t_ws)
+    return cam, render(t_wr), t_wr, [render(p) for p in poses], np.stack(poses)
+
+
+def test_plane_depth_is_exact():
+    cam, ref, t_wr, srcs, poses = plane_views()
+    r = mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, depth_range=(10.0, 500.0))
+    inner = r.depth[10:-10, 10:-10]
+    assert (inner > 0).mean() > 0.9
+    err = np.abs(inner[inner > 0] / 50.0 - 1)
+    assert np.median(err) < 0.002
+    assert err.max() < 0.05
+    assert r.neighbours == (0, 1, 2, 3)
+    assert r.n_planes >= MvsOptions().min_planes
+    assert r.depth_range == (10.0, 500.0)
+
+
+def test_flat_texture_is_rejected():
+    cam, ref, t_wr, srcs, poses = plane_views(flat_half=True)
+    r = mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, depth_range=(10.0, 500.0))
+    assert not r.depth[:, :70].any()
+    assert (r.depth[10:-10, 90:-10] > 0).mean() > 0.9
+
+
+def test_full_resolution_sweep_option():
+    cam, ref, t_wr, srcs, poses = plane_views()
+    o = MvsOptions(sweep_scale=1.0, n_planes=64, surface_passes=0, edge_trim_px=0)
+    r = mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, depth_range=(10.0, 500.0), options=o)
+    inner = r.depth[10:-10, 10:-10]
+    assert r.n_planes == 64
+    assert (inner > 0).mean() > 0.9
+    assert np.median(np.abs(inner[inner > 0] / 50.0 - 1)) < 0.005
+
+
+# --------------------------------------------------------------------------------------------- neighbours
+
+
+def test_select_neighbours_rule():
+    cam = PinholeCamera.from_fov(320, 240, 60.0)
+    target = np.zeros(3)
+
+    def at(x, y, z):
+        return look_at([x, y, z], target)
+
+    poses = np.stack([
+        at(0, -100, 60),  # 0 reference (~117 m from the target)
+        at(0, -100, 60),  # 1 same pose: no triangulation angle
+        at(15, -100, 60),  # 2 ~7 deg
+        at(-25, -100, 60),  # 3 ~12 deg
+        at(40, -95, 60),  # 4 ~20 deg
+        at(110, 0, 60),  # 5 ~60 deg: too wide (and looking across)
+        look_at([0, -100, 60], [0, -200, 60]),  # 6 facing away
+        at(-8, -100, 60),  # 7 ~4 deg
+    ])  # fmt: skip
+    pts = np.random.default_rng(0).uniform([-20, -20, 0], [20, 20, 5], (500, 3))
+    got = mvs.select_neighbours(0, poses, cam, points_w=pts)
+    assert set(got) == {2, 3, 4, 7}
+    assert got[0] in (2, 3)  # nearest to the 10 deg target first
+    assert mvs.select_neighbours(0, poses, cam, points_w=pts, max_neighbours=2) == got[:2]
+    # Without sparse points: a pixel grid at the geometric mean of the depth range.
+    assert set(mvs.select_neighbours(0, poses, cam, depth_range=(80.0, 170.0))) == {2, 3, 4, 7}
+    with pytest.raises(ValueError, match='depth_range or points_w'):
+        mvs.select_neighbours(0, poses, cam)
+    with pytest.raises(ValueError, match='ref_index'):
+        mvs.select_neighbours(8, poses, cam, points_w=pts)
+    with pytest.raises(ValueError, match='cameras'):
+        mvs.select_neighbours(0, poses, [cam, cam], points_w=pts)
+
+
+# --------------------------------------------------------------------------------------------- filter
+
+
+def test_geometric_filter_keeps_consistent_and_drops_wrong(flights):
+    frames, cam, poses, _, _ = flights[(2, 'lawnmower')]
+    gt = [np.where(f.sky, 0, f.depth).astype(np.float32) for f in frames]
+    kept, counts = mvs.geometric_filter(gt, cam, poses)
+    for c in counts:
+        assert c.dtype == np.uint8
+        assert c.max() <= len(frames) - 1
+    # The middle view has 2 partners nearly everywhere: all but occlusions and frustum edges agree.
+    assert (kept[2] > 0).sum() >= 0.85 * (gt[2] > 0).sum()
+    assert np.all(kept[2][kept[2] > 0] == gt[2][kept[2] > 0])
+    wrong = [d.copy() for d in gt]
+    wrong[2][100:150, 200:300] *= 1.05
+    kept, _ = mvs.geometric_filter(wrong, cam, poses, max_rel_depth_err=0.01)
+    assert not kept[2][100:150, 200:300].any()
+    assert (kept[2][160:] > 0).mean() > 0.8
+    # The same result through the pairs of compute_depth_maps, and the clamp to the partner count.
+    one, _ = mvs.geometric_filter(gt[:2], cam, poses[:2], min_consistent=2)
+    assert (one[0] > 0).sum() > 0.5 * (gt[0] > 0).sum()
+
+
+# --------------------------------------------------------------------------------------------- bad input
+
+
+def test_bad_input_is_named():
+    cam, ref, t_wr, srcs, poses = plane_views()
+    rng = (10.0, 500.0)
+    with pytest.raises(ValueError, match=r'src_rgbs\[1\]'):
+        mvs.mvs_depth(ref, cam, t_wr, [srcs[0], srcs[1][:-1]], cam, poses[:2], depth_range=rng)
+    with pytest.raises(ValueError, match='ref_rgb'):
+        mvs.mvs_depth(ref[:, :-1], cam, t_wr, srcs, cam, poses, depth_range=rng)
+    with pytest.raises(ValueError, match='src_poses'):
+        mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses[:3], depth_range=rng)
+    with pytest.raises(ValueError, match='src_cams'):
+        mvs.mvs_depth(ref, cam, t_wr, srcs, [cam] * 3, poses, depth_range=rng)
+    with pytest.raises(ValueError, match='depth_range or points_w'):
+        mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses)
+    with pytest.raises(ValueError, match='depth_range'):
+        mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, depth_range=(50.0, 10.0))
+    with pytest.raises(ValueError, match='ref_pose'):
+        mvs.mvs_depth(ref, cam, 2 * np.eye(4), srcs, cam, poses, depth_range=rng)
+    distorted = PinholeCamera(cam.width, cam.height, cam.k, d=[0.1, 0, 0, 0, 0])
+    with pytest.raises(ValueError, match='undistort'):
+        mvs.mvs_depth(ref, distorted, t_wr, srcs, cam, poses, depth_range=rng)
+    with pytest.raises(ValueError, match=r'MvsOptions\.window'):
+        MvsOptions(window=4)
+    with pytest.raises(ValueError, match=r'MvsOptions\.backend'):
+        MvsOptions(backend='gpu')
+    with pytest.raises(ValueError, match=r'views\[0\]'):
+        mvs.compute_depth_maps([(ref, cam, t_wr)], depth_range=rng)
+    with pytest.raises(ValueError, match=r'depths\[0\]'):
+        mvs.geometric_filter([np.zeros((5, 5))], cam, poses[:1])
+
+
+def test_degenerate_views_give_empty_depth_with_a_reason():
+    cam, ref, t_wr, srcs, poses = plane_views()
+    rng = (10.0, 500.0)
+    r = mvs.mvs_depth(ref, cam, t_wr, [], cam, np.zeros((0, 4, 4)), depth_range=rng)
+    assert r.reason == mvs.REASON_NO_SOURCES
+    assert not r.depth.any()
+    assert r.depth.shape == ref.shape[:2]
+    away = look_at([0, 0, 0], [0, 0, -1.0], up=(0, 1, 0))  # looking backwards
+    r = mvs.mvs_depth(ref, cam, t_wr, srcs[:1], cam, away[None], depth_range=rng)
+    assert r.reason == mvs.REASON_NO_OVERLAP
+    assert not r.depth.any()
+    r = mvs.mvs_depth(ref, cam, t_wr, [ref], cam, t_wr[None], depth_range=rng)
+    assert r.reason == mvs.REASON_NO_PARALLAX
+    assert not r.depth.any()
+    r = mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, points_w=np.array([[0.0, 0.0, -10.0]]))
+    assert r.reason == mvs.REASON_NO_DEPTH_RANGE
+    assert not r.depth.any()
+    # A single view, and a set whose second view sees nothing of the first.
+    [one] = mvs.compute_depth_maps([MvsView(ref, cam, t_wr)], depth_range=rng)
+    assert one.reason == mvs.REASON_NO_SOURCES
+    assert not one.depth.any()
+    assert one.neighbours == ()
+    far = np.eye(4)
+    far[:3, 3] = [5000.0, 0, 0]
+    both = mvs.compute_depth_maps([MvsView(ref, cam, t_wr), MvsView(srcs[0], cam, far)], depth_range=rng)
+    assert [b.reason for b in both] == [mvs.REASON_NO_SOURCES] * 2
+    assert mvs.compute_depth_maps([], depth_range=rng) == []
+
+
+# --------------------------------------------------------------------------------------------- COLMAP
+
+
+def test_colmap_backend_without_cuda_is_a_clean_error(monkeypatch):
+    import pycolmap
+
+    monkeypatch.setattr(pycolmap, 'has_cuda', False, raising=False)
+    cam, ref, t_wr, srcs, poses = plane_views()
+    o = MvsOptions(backend='colmap')
+    with pytest.raises(MvsBackendUnavailable, match=r"pycolmap was built without CUDA; use backend='cpu'"):
+        mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, depth_range=(10.0, 500.0), options=o)
+    views = [MvsView(ref, cam, t_wr)] + [MvsView(s, cam, p) for s, p in zip(srcs, poses)]
+    with pytest.raises(RuntimeError, match='CUDA'):
+        mvs.compute_depth_maps(views, depth_range=(10.0, 500.0), options=o)
+
+
+def test_colmap_backend_workspace_round_trip(monkeypatch):
+    """With CUDA faked: the sparse model, patch-match.cfg and the depth map files COLMAP reads/writes."""
+    import pycolmap
+
+    cam, ref, t_wr, srcs, poses = plane_views()
+    seen = {}
+
+    def fake_patch_match_stereo(ws, workspace_format='COLMAP', options=None, **_):
+        rec = pycolmap.Reconstruction(ws / 'sparse')
+        seen['cfg'] = (ws / 'stereo' / 'patch-match.cfg').read_text().split('\n')
+        seen['range'] = (options.depth_min, options.depth_max)
+        for image in rec.images.values():
+            t_cw = np.eye(4)
+            t_cw[:3] = image.cam_from_world().matrix()
+            seen[image.name] = (np.linalg.inv(t_cw), rec.cameras[image.camera_id].params.copy())
+            h, w = rec.cameras[image.camera_id].height, rec.cameras[image.camera_id].width
+            for kind, value in (('geometric', image.image_id), ('photometric', -1.0)):
+                path = ws / 'stereo' / 'depth_maps' / f'{image.name}.{kind}.bin'
+                data = np.full((h, w), value, np.float32)
+                path.write_bytes(f'{w}&{h}&1&'.encode() + data.tobytes())
+
+    monkeypatch.setattr(pycolmap, 'has_cuda', True, raising=False)
+    monkeypatch.setattr(pycolmap, 'patch_match_stereo', fake_patch_match_stereo)
+    views = [MvsView(ref, cam, t_wr)] + [MvsView(s, cam, p) for s, p in zip(srcs, poses)]
+    out = mvs.compute_depth_maps(views, depth_range=(10.0, 500.0), options=MvsOptions(backend='colmap'))
+    assert seen['range'] == (10.0, 500.0)
+    assert seen['cfg'][0] == '00000.png'
+    assert set(seen['cfg'][1].split(', ')) == {f'0000{i}.png' for i in range(1, 5)}
+    np.testing.assert_allclose(seen['00002.png'][0], poses[1], atol=1e-9)
+    np.testing.assert_allclose(seen['00000.png'][1], [cam.fx, cam.fy, cam.cx + 0.5, cam.cy + 0.5])
+    for i, r in enumerate(out):
+        assert r.depth.shape == ref.shape[:2]
+        assert np.all(r.depth == i + 1)
+        assert not r.photometric_depth.any()  # negative depth is unknown
