@@ -76,7 +76,10 @@ class RefinerConfig:
 
 @dataclass(frozen=True, eq=False)
 class RefinedDepth:
-    """The final depth of one view and every intermediate map (paper Fig. 3)."""
+    """The final depth of one view and every intermediate map (paper Fig. 3).
+
+    ``sky`` is the eroded sky mask that received the sky depth; ``sky_raw`` the mask before erosion.
+    """
 
     depth: NDArray[np.float32]
     mvs: NDArray[np.float32]
@@ -86,6 +89,7 @@ class RefinedDepth:
     fused: NDArray[np.float32]
     sky: NDArray[np.bool_]
     sky_depth: float
+    sky_raw: NDArray[np.bool_] | None = None
     flags: tuple[str, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
 
@@ -196,6 +200,7 @@ class DepthRefiner:
             sky = sky_fallback(rgb, view.camera, view.t_wc, pruned)
         else:
             sky = np.zeros(shape, bool)
+        sky_raw = sky
         sky = erode_sky(sky, diag_fraction=c.sky_erosion) if sky.any() else sky
         lap('sky')
 
@@ -225,6 +230,7 @@ class DepthRefiner:
             fused=fused,
             sky=sky,
             sky_depth=sky_depth,
+            sky_raw=sky_raw,
             flags=tuple(flags),
             timings_s=timings,
         )

@@ -105,6 +105,7 @@ def sky_fallback(
     *,
     max_gradient: float = 12.0,
     min_brightness: float = 90.0,
+    relative_brightness: float = 0.88,
 ) -> NDArray[np.bool_]:
     """Sky without a segmentation model: above the horizon, no MVS depth, bright and smooth.
 
@@ -120,6 +121,12 @@ def sky_fallback(
     known = (np.nan_to_num(d_mvs) > 0).astype(np.uint8)
     near_depth = cv2.dilate(known, np.ones((3, 3), np.uint8)) > 0
     cand = above & ~near_depth & (grad < max_gradient) & (gray >= min_brightness)
+    if cand.any():  # the sky is the brightest smooth region: drop darker (hazy hill) candidates
+        value = rgb.max(axis=2)  # HSV value: blue sky is bright in it, unlike in luminance
+        ref = float(np.percentile(value[cand], 95))
+        if ref < float(np.percentile(value, 90)):
+            return np.zeros_like(cand)  # nothing above the horizon is among the image's brightest
+        cand &= value >= relative_brightness * ref
     n, labels = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
     if n <= 1:
         return cand
