@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_bag_io import corrupt_chunk
 
 from ibr_ros.bag import TYPESTORE, BagWriter
 from ibr_ros.cli.main import main
@@ -46,19 +47,6 @@ def write_bag(path: Path) -> Path:
         )
         writer.write('/fix', fix, SEC)
     return path
-
-
-def corrupt_chunk(data: bytes) -> bytes:
-    """``data`` (an MCAP file) with the middle of its first chunk overwritten."""
-    import io
-
-    from mcap.reader import make_reader
-
-    summary = make_reader(io.BytesIO(data)).get_summary()
-    assert summary is not None
-    chunk = summary.chunk_indexes[0]
-    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
-    return data[: middle - 20] + b'\xff' * 40 + data[middle + 20 :]
 
 
 @pytest.fixture(scope='module')
