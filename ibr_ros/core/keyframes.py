@@ -1,0 +1,174 @@
+"""Keyframe selection for a drone video: reject blurred frames, keep frames that moved enough.
+
+The paper subsamples 20-30 images per flight. A frame becomes a keyframe when it is sharp and,
+relative to the last keyframe, its camera moved by at least ``baseline_ratio`` x the scene depth
+(or ``min_baseline_m`` when the depth is unknown), turned by ``max_rotation_deg``, or
+``max_interval_s`` passed. Poses are 4x4 camera-to-world matrices (metres); stamps are nanoseconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ['Decision', 'KeyframeConfig', 'KeyframeSelector', 'blur_score', 'select_keyframes']
+
+
+def blur_score(image: NDArray[np.uint8], *, max_side: int = 480) -> float:
+    """Sharpness as the variance of the Laplacian of the gray image (higher = sharper).
+
+    Colour images are converted to gray; images larger than ``max_side`` are downscaled first (by
+    an integer factor with INTER_AREA) so the score costs about the same at any resolution and is
+    comparable between frames of one camera.
+    """
+    img = np.asarray(image)
+    gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+    step = max(1, math.ceil(max(gray.shape) / max_side))
+    if step > 1:
+        gray = cv2.resize(gray, (gray.shape[1] // step, gray.shape[0] // step), interpolation=cv2.INTER_AREA)
+    return float(cv2.Laplacian(gray, cv2.CV_32F).var())
+
+
+@dataclass(frozen=True)
+class KeyframeConfig:
+    """Thresholds of :class:`KeyframeSelector` (see the module docstring).
+
+    ``blur_ratio``: a frame is blurred when its :func:`blur_score` is below ``blur_ratio`` x the
+    median score of the last ``blur_window`` frames (and below ``min_blur_score`` absolutely).
+    """
+
+    baseline_ratio: float = 0.08
+    min_baseline_m: float = 2.0
+    max_rotation_deg: float = 15.0
+    max_interval_s: float = 0.0
+    min_interval_s: float = 0.0
+    blur_ratio: float = 0.6
+    min_blur_score: float = 0.0
+    blur_window: int = 15
+
+    def __post_init__(self) -> None:
+        for name in (
+            'baseline_ratio',
+            'min_baseline_m',
+            'max_rotation_deg',
+            'max_interval_s',
+            'min_interval_s',
+        ):
+            if getattr(self, name) < 0:
+                raise ValueError(f'KeyframeConfig.{name} must be >= 0, got {getattr(self, name)}')
+        if not 0 <= self.blur_ratio <= 1:
+            raise ValueError(f'KeyframeConfig.blur_ratio must be in [0, 1], got {self.blur_ratio}')
+        if self.blur_window < 1:
+            raise ValueError(f'KeyframeConfig.blur_window must be >= 1, got {self.blur_window}')
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Whether a frame became a keyframe, and why (``first``, ``baseline``, ``rotation``,
+    ``interval``, ``blurred``, ``too_soon``, ``not_moved``)."""
+
+    keep: bool
+    reason: str
+    baseline_m: float = 0.0
+    rotation_deg: float = 0.0
+    blur: float = 0.0
+
+
+def _rotation_deg(r_a: NDArray[np.float64], r_b: NDArray[np.float64]) -> float:
+    c = (np.trace(r_a.T @ r_b) - 1.0) / 2.0
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+class KeyframeSelector:
+    """Online keyframe decisions, one frame at a time (state: the last keyframe and recent blur)."""
+
+    def __init__(self, config: KeyframeConfig | None = None) -> None:
+        self.config = config or KeyframeConfig()
+        self._blur: deque[float] = deque(maxlen=self.config.blur_window)
+        self._last_pose: NDArray[np.float64] | None = None
+        self._last_stamp: int | None = None
+        self.count = 0
+
+    def decide(
+        self, stamp_ns: int, t_wc: NDArray[np.float64], blur: float, scene_depth_m: float | None = None
+    ) -> Decision:
+        """Decide for one frame; ``scene_depth_m`` is e.g. the median depth seen (None = unknown)."""
+        c = self.config
+        median_blur = float(np.median(self._blur)) if self._blur else blur
+        self._blur.append(blur)
+        if blur < c.min_blur_score or (len(self._blur) > 1 and blur < c.blur_ratio * median_blur):
+            return Decision(False, 'blurred', blur=blur)
+        if self._last_pose is None or self._last_stamp is None:
+            return self._keep(stamp_ns, t_wc, Decision(True, 'first', blur=blur))
+        dt = (stamp_ns - self._last_stamp) * 1e-9
+        base = float(np.linalg.norm(t_wc[:3, 3] - self._last_pose[:3, 3]))
+        rot = _rotation_deg(self._last_pose[:3, :3], t_wc[:3, :3])
+        if dt < c.min_interval_s:
+            return Decision(False, 'too_soon', base, rot, blur)
+        need = c.baseline_ratio * scene_depth_m if scene_depth_m and scene_depth_m > 0 else c.min_baseline_m
+        if base >= max(need, 1e-9):
+            return self._keep(stamp_ns, t_wc, Decision(True, 'baseline', base, rot, blur))
+        if c.max_rotation_deg and rot >= c.max_rotation_deg:
+            return self._keep(stamp_ns, t_wc, Decision(True, 'rotation', base, rot, blur))
+        if c.max_interval_s and dt >= c.max_interval_s:
+            return self._keep(stamp_ns, t_wc, Decision(True, 'interval', base, rot, blur))
+        return Decision(False, 'not_moved', base, rot, blur)
+
+    def _keep(self, stamp_ns: int, t_wc: NDArray[np.float64], d: Decision) -> Decision:
+        self._last_pose = np.array(t_wc, dtype=np.float64)
+        self._last_stamp = stamp_ns
+        self.count += 1
+        return d
+
+
+def select_keyframes(
+    stamps_ns: Sequence[int],
+    poses: Sequence[NDArray[np.float64]],
+    blur: Sequence[float],
+    *,
+    target: int = 25,
+    scene_depth_m: Sequence[float | None] | None = None,
+    config: KeyframeConfig | None = None,
+) -> list[int]:
+    """Offline selection of about ``target`` keyframes from a whole flight (indices, in order).
+
+    Runs :class:`KeyframeSelector` with its ``baseline_ratio`` (and ``min_baseline_m``) scaled by a
+    common factor found by bisection so that the count is as close to ``target`` as possible.
+    """
+    n = len(stamps_ns)
+    if not (len(poses) == len(blur) == n):
+        raise ValueError(
+            f'stamps_ns, poses and blur must have one entry per frame, got {n}, {len(poses)}, {len(blur)}'
+        )
+    if target < 1:
+        raise ValueError(f'target must be >= 1, got {target}')
+    base = config or KeyframeConfig()
+    depths = list(scene_depth_m) if scene_depth_m is not None else [None] * n
+
+    def run(scale: float) -> list[int]:
+        cfg = replace(
+            base, baseline_ratio=base.baseline_ratio * scale, min_baseline_m=base.min_baseline_m * scale
+        )
+        sel = KeyframeSelector(cfg)
+        return [i for i in range(n) if sel.decide(stamps_ns[i], poses[i], blur[i], depths[i]).keep]
+
+    lo, hi = 1e-3, 1e3
+    best = run(1.0)
+    for _ in range(40):
+        mid = math.sqrt(lo * hi)
+        picked = run(mid)
+        if abs(len(picked) - target) < abs(len(best) - target):
+            best = picked
+        if len(picked) == target:
+            break
+        if len(picked) > target:
+            lo = mid
+        else:
+            hi = mid
+    return best
