@@ -52,9 +52,13 @@ def flights():
         frames = [render_view(scene, cam, s.t_wc) for s in traj]
         poses = np.stack([s.t_wc for s in traj])
         pts = sparse_points(frames, cam, poses, np.random.default_rng(seed))
+        calls = []
         results = mvs.compute_depth_maps(
-            [MvsView(f.rgb, cam, p) for f, p in zip(frames, poses)], points_w=pts
+            [MvsView(f.rgb, cam, p) for f, p in zip(frames, poses)],
+            points_w=pts,
+            progress=lambda done, total, calls=calls: calls.append((done, total)),
         )
+        assert calls == [(i + 1, N_VIEWS) for i in range(N_VIEWS)]
         out[(seed, kind)] = (frames, cam, poses, pts, results)
     return out
 

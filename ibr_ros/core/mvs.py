@@ -105,7 +105,7 @@ class MvsOptions:
     n_planes: int | None = None
     min_planes: int = 48
     max_planes: int = 192
-    plane_step_px: float = 1.5
+    plane_step_px: float = 2.0
     sweep_scale: float = 0.5
     window: int = 7
     top_k: int = 2
@@ -115,7 +115,7 @@ class MvsOptions:
     surface_passes: int = 1
     min_zncc: float = 0.5
     min_std: float = 2.0
-    min_margin: float = 0.02
+    min_margin: float = 0.01
     edge_trim_px: int = 4
     edge_trim_ratio: float = 1.08
     max_neighbours: int = 4
