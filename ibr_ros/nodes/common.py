@@ -1,0 +1,107 @@
+"""Shared plumbing of the ibr_ros nodes: QoS profiles, parameters with descriptors, bad-input
+accounting and the process entry point (init, spin, clean shutdown)."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (
+    QoSDurabilityPolicy,
+    QoSHistoryPolicy,
+    QoSProfile,
+    QoSReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+__all__ = ['BadInput', 'declare', 'model_qos', 'reliable_qos', 'run_node', 'sensor_qos']
+
+LOG = logging.getLogger(__name__)
+
+
+def sensor_qos() -> QoSProfile:
+    """Raw camera streams (REP-2003 sensor data): best effort, keep last 5."""
+    return qos_profile_sensor_data
+
+
+def model_qos(depth: int = 1000) -> QoSProfile:
+    """Keyframes, depth, camera_info: reliable + transient local, deep enough for the whole model,
+    so that a node started late (or restarted) receives everything already published."""
+    return QoSProfile(
+        history=QoSHistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=QoSReliabilityPolicy.RELIABLE,
+        durability=QoSDurabilityPolicy.TRANSIENT_LOCAL,
+    )
+
+
+def reliable_qos(depth: int = 10) -> QoSProfile:
+    """Queries and replies: reliable, volatile."""
+    return QoSProfile(depth=depth, reliability=QoSReliabilityPolicy.RELIABLE)
+
+
+def declare(
+    node: Node,
+    name: str,
+    default: object,
+    description: str,
+    *,
+    read_only: bool = True,
+    limits: tuple[float, float] | None = None,
+) -> object:
+    """Declare a parameter with a descriptor (a numeric range when ``limits`` is given); return its value."""
+    desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
+    if limits is not None and isinstance(default, bool):
+        raise ValueError(f'parameter {name}: limits make no sense for a bool')
+    if limits is not None and isinstance(default, int):
+        desc.integer_range = [IntegerRange(from_value=int(limits[0]), to_value=int(limits[1]), step=0)]
+    elif limits is not None and isinstance(default, float):
+        desc.floating_point_range = [FloatingPointRange(from_value=limits[0], to_value=limits[1], step=0.0)]
+    return node.declare_parameter(name, default, desc).value
+
+
+class BadInput:
+    """Counts rejected messages by reason and logs each reason at most every ``throttle_s`` seconds."""
+
+    def __init__(self, node: Node, throttle_s: float = 5.0) -> None:
+        self.node = node
+        self.counts: Counter[str] = Counter()
+        self.throttle_s = throttle_s
+        self._last_log: dict[str, float] = {}
+
+    def __call__(self, reason: str, detail: str) -> None:
+        """Record one rejected message: ``reason`` is a short key, ``detail`` names field and value."""
+        self.counts[reason] += 1
+        now = time.monotonic()
+        if now - self._last_log.get(reason, -math.inf) >= self.throttle_s:  # throttled per reason
+            self._last_log[reason] = now
+            self.node.get_logger().warning(
+                f'rejected input ({reason}, {self.counts[reason]} so far): {detail}'
+            )
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Initialise rclpy, spin the node made by ``factory`` until Ctrl-C or shutdown, clean up."""
+    rclpy.init(args=list(args) if args is not None else None)
+    node = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

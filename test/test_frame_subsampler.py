@@ -1,0 +1,119 @@
+"""frame_subsampler in its own process, fed over DDS from the shipped synthetic bag.
+
+The test node publishes every 2nd frame of the bag's first 12 s (CompressedImage + CameraInfo +
+PoseStamped) with malformed messages interleaved (zero quaternion, NaN position, garbage JPEG,
+mismatched camera_info), then checks the keyframes: three topics with identical stamps, a sensible
+count, and a node that is still alive and has logged the rejections.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+import msg_utils
+from ibr_ros.bag import open_bag
+from ibr_ros.jobs.synth_bag import TOPICS
+
+LATCHED = QoSProfile(
+    depth=1000, reliability=QoSReliabilityPolicy.RELIABLE, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL
+)
+PUB_QOS = QoSProfile(depth=50, reliability=QoSReliabilityPolicy.RELIABLE)
+
+
+def _frames(repo, seconds: float = 12.0, every: int = 2):
+    with open_bag(repo / 'bags' / 'synth_orbit_s0') as bag:
+        by_stamp: dict[int, dict] = {}
+        for m in bag.messages([TOPICS['image'], TOPICS['camera_info'], TOPICS['pose']]):
+            by_stamp.setdefault(m.timestamp_ns, {})[m.topic] = m.rawdata
+    stamps = sorted(by_stamp)
+    stamps = [s for s in stamps if s - stamps[0] < seconds * 1e9][::every]
+    return [(s, by_stamp[s]) for s in stamps]
+
+
+def _wait(node, cond, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not cond() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return cond()
+
+
+@pytest.fixture
+def subsampler(repo, ros_env):
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'ibr_ros.nodes.frame_subsampler', '--ros-args',
+         '--params-file', str(repo / 'config' / 'frame_subsampler.yaml'),
+         '-p', 'compressed:=true', '-p', 'scene_depth_m:=120.0'],
+        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    yield proc
+    proc.terminate()
+    proc.wait(timeout=20)
+
+
+def test_keyframes_from_the_shipped_bag(repo, subsampler):
+    from rclpy.serialization import deserialize_message
+
+    frames = _frames(repo)
+    rclpy.init()
+    try:
+        node = rclpy.create_node('subsampler_feeder')
+        pub_img = node.create_publisher(CompressedImage, 'camera/image_raw/compressed', PUB_QOS)
+        pub_info = node.create_publisher(CameraInfo, 'camera/camera_info', PUB_QOS)
+        pub_pose = node.create_publisher(PoseStamped, 'camera/pose', PUB_QOS)
+        got: dict[str, list] = {'image': [], 'info': [], 'pose': []}
+        node.create_subscription(Image, 'keyframes/image', got['image'].append, LATCHED)
+        node.create_subscription(CameraInfo, 'keyframes/camera_info', got['info'].append, LATCHED)
+        node.create_subscription(PoseStamped, 'keyframes/pose', got['pose'].append, LATCHED)
+        pubs = (pub_img, pub_info, pub_pose)
+        assert _wait(node, lambda: all(p.get_subscription_count() > 0 for p in pubs), 30), (
+            'node never subscribed'
+        )
+
+        for k, (stamp, raw) in enumerate(frames):
+            img = deserialize_message(raw[TOPICS['image']], CompressedImage)
+            info = deserialize_message(raw[TOPICS['camera_info']], CameraInfo)
+            pose = deserialize_message(raw[TOPICS['pose']], PoseStamped)
+            if k % 5 == 2:  # malformed companions of a frame that also has valid ones
+                bad_pose = deserialize_message(raw[TOPICS['pose']], PoseStamped)
+                bad_pose.pose.orientation.w = bad_pose.pose.orientation.x = 0.0
+                bad_pose.pose.orientation.y = bad_pose.pose.orientation.z = 0.0
+                bad_pose.header.stamp = msg_utils.ns_to_stamp(stamp + 1)
+                pub_pose.publish(bad_pose)
+                garbage = CompressedImage(header=img.header, format='jpeg')
+                garbage.header.stamp = msg_utils.ns_to_stamp(stamp + 1)
+                garbage.data = b'not a jpeg'
+                pub_img.publish(garbage)
+                nan_pose = deserialize_message(raw[TOPICS['pose']], PoseStamped)
+                nan_pose.pose.position.x = float('nan')
+                nan_pose.header.stamp = msg_utils.ns_to_stamp(stamp + 2)
+                pub_pose.publish(nan_pose)
+            pub_info.publish(info)
+            pub_pose.publish(pose)
+            pub_img.publish(img)
+            rclpy.spin_once(node, timeout_sec=0.03)
+        assert _wait(node, lambda: len(got['pose']) >= 3 and len(got['pose']) == len(got['image']), 30)
+        _wait(node, lambda: False, 1.0)  # let the last keyframe's three messages arrive
+    finally:
+        rclpy.try_shutdown()
+    assert subsampler.poll() is None, 'node died'
+    stamps = [[msg_utils.stamp_to_ns(m.header.stamp) for m in got[k]] for k in ('image', 'info', 'pose')]
+    assert stamps[0] == stamps[1] == stamps[2]
+    assert 4 <= len(stamps[0]) <= len(frames) // 2
+    assert got['image'][0].encoding == 'rgb8'
+    assert (got['image'][0].width, got['image'][0].height) == (640, 360)
+    # Keyframes are spaced: consecutive camera centres >= 0.08 x 120 m apart (or turned 15 deg).
+    centres = np.array([msg_utils.pose_stamped_to_matrix(m)[:3, 3] for m in got['pose']])
+    assert (np.linalg.norm(np.diff(centres, axis=0), axis=1) > 1.0).all()
+    subsampler.terminate()
+    out, _ = subsampler.communicate(timeout=20)
+    assert 'rejected input (pose' in out
+    assert 'rejected input (image' in out
