@@ -270,3 +270,11 @@ def test_render_flight_progress():
     assert [s.t_s for s, _ in out] == pytest.approx([0.0, 1 / 3, 2 / 3])
     assert all(f.rgb.shape == (36, 64, 3) for _, f in out)
     assert all(s.t_wc[2, 3] >= cfg.max_height_m + 5.0 for s, _ in out)
+
+
+@pytest.mark.parametrize('kind', ['orbit', 'lawnmower', 'forward'])
+def test_narrow_pitch_range_outside_the_preferred_window(kind):
+    """A user pitch range that misses a trajectory's preferred window still gives a flight in range."""
+    samples = make_trajectory(kind, duration_s=2, fps=2, pitch_range_deg=(-18, -15))
+    pitches = np.degrees(np.arcsin([s.t_wc[2, 2] for s in samples]))  # optical axis elevation
+    assert ((pitches >= -18.0 - 1e-6) & (pitches <= -15.0 + 1e-6)).all(), pitches

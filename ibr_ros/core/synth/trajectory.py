@@ -63,6 +63,12 @@ def _lawnmower_xy(sigma: float, lane_len: float, spacing: float, n_lanes: int) -
     return along, across, heading
 
 
+def _preferred(rng: np.random.Generator, lo: float, hi: float, pref_lo: float, pref_hi: float) -> float:
+    """Uniform in the overlap of [lo, hi] and the preferred [pref_lo, pref_hi]; in [lo, hi] if none."""
+    a, b = max(lo, pref_lo), min(hi, pref_hi)
+    return float(rng.uniform(a, b) if a <= b else rng.uniform(lo, hi))
+
+
 def make_trajectory(
     kind: TrajectoryKind,
     *,
@@ -119,7 +125,7 @@ def make_trajectory(
         lane_len = 1.6 * e
         psi = rng.uniform(0, 2 * math.pi)
         alt0 = rng.uniform(alo + 0.3 * span, ahi - 0.1 * span)
-        pitch0 = rng.uniform(max(plo, math.radians(-55)), min(phi, math.radians(-30)))
+        pitch0 = _preferred(rng, plo, phi, math.radians(-55), math.radians(-30))
         sigma0 = rng.uniform(0.0, 0.5 * lane_len)
         cp, sp = math.cos(psi), math.sin(psi)
         for t in ts:
@@ -135,7 +141,7 @@ def make_trajectory(
         turn = math.radians(rng.uniform(-2.5, 2.5))  # rad/s
         alt0 = rng.uniform(alo + 0.3 * span, ahi - 0.2 * span)
         alt_amp, alt_w = 0.15 * span, rng.uniform(0.05, 0.15)
-        pitch0 = rng.uniform(max(plo, math.radians(-45)), min(phi, math.radians(-20)))
+        pitch0 = _preferred(rng, plo, phi, math.radians(-45), math.radians(-20))
         # Integrate the heading: a constant turn rate plus, once beyond the town, steering back
         # towards its centre (so long flights stay over the town); 20 sub-steps per frame.
         sub = 20
