@@ -42,8 +42,8 @@ test: install
 	$(BIN)/python -m pytest -q test
 
 lint: install
-	$(BIN)/ruff check ibr_ros msg_utils test bench setup.py
-	$(BIN)/ruff format --check ibr_ros msg_utils test bench setup.py
+	$(BIN)/ruff check ibr_ros msg_utils test bench launch setup.py
+	$(BIN)/ruff format --check ibr_ros msg_utils test bench launch setup.py
 
 bench: install
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

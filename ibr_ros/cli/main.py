@@ -15,7 +15,13 @@ import sys
 from ibr_ros import __version__
 from ibr_ros.errors import UserError
 
-SUBCOMMAND_MODULES = ('ibr_ros.cli.bag', 'ibr_ros.cli.register', 'ibr_ros.cli.eval', 'ibr_ros.cli.demo')
+SUBCOMMAND_MODULES = (
+    'ibr_ros.cli.bag',
+    'ibr_ros.cli.register',
+    'ibr_ros.cli.eval',
+    'ibr_ros.cli.graph',
+    'ibr_ros.cli.demo',
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

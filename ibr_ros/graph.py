@@ -1,0 +1,149 @@
+"""Start the ibr_ros node graph as separate processes, where ``ros2 launch`` is not available.
+
+Each node runs as ``python -m ibr_ros.nodes.<name> --ros-args --params-file <config>/<name>.yaml``
+(the same parameters as ``launch/ibr_graph.launch.py``) plus per-node overrides. Ctrl-C (SIGINT)
+and SIGTERM are forwarded to every node; nodes still running after ``grace_s`` are terminated.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ['GRAPH_NODES', 'Graph', 'NodeSpec', 'config_dir', 'node_command']
+
+LOG = logging.getLogger(__name__)
+
+#: The nodes of the graph, in start order.
+GRAPH_NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer')
+
+
+def config_dir() -> Path:
+    """Folder of the default parameter files: the installed share/ibr_ros/config, else the checkout's."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+        try:
+            installed = Path(get_package_share_directory('ibr_ros')) / 'config'
+            if installed.is_dir():
+                return installed
+        except (PackageNotFoundError, ValueError, OSError):
+            pass
+    except ImportError:
+        pass
+    return Path(__file__).resolve().parents[1] / 'config'
+
+
+def _ros_value(value: object) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(_ros_value(v) for v in value) + ']'
+    return str(value)
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node process: executable name, parameter overrides, remappings, optional node name.
+
+    Parameter files use the ``/**:`` wildcard key, so they also apply to renamed nodes (e.g. the
+    sharded ``depth_refiner_1``).
+    """
+
+    name: str
+    params: Mapping[str, object] = field(default_factory=dict)
+    remaps: Mapping[str, str] = field(default_factory=dict)
+    node_name: str | None = None
+
+    @property
+    def label(self) -> str:
+        return self.node_name or self.name
+
+
+def node_command(spec: NodeSpec, *, config: Path | None = None, python: str = sys.executable) -> list[str]:
+    """Command line of one node process."""
+    cmd = [python, '-m', f'ibr_ros.nodes.{spec.name}', '--ros-args']
+    params_file = (config or config_dir()) / f'{spec.name}.yaml'
+    if params_file.is_file():
+        cmd += ['--params-file', str(params_file)]
+    for key, value in spec.params.items():
+        cmd += ['-p', f'{key}:={_ros_value(value)}']
+    for src, dst in spec.remaps.items():
+        cmd += ['-r', f'{src}:={dst}']
+    if spec.node_name:
+        cmd += ['-r', f'__node:={spec.node_name}']
+    return cmd
+
+
+class Graph:
+    """Node processes started together and stopped together (a context manager)."""
+
+    def __init__(
+        self,
+        nodes: Sequence[NodeSpec],
+        *,
+        config: Path | None = None,
+        env: Mapping[str, str] | None = None,
+        log_dir: Path | None = None,
+        grace_s: float = 10.0,
+    ) -> None:
+        self.specs = list(nodes)
+        self.config = config
+        self.env = dict(os.environ if env is None else env)
+        self.log_dir = log_dir
+        self.grace_s = grace_s
+        self.procs: dict[str, subprocess.Popen] = {}
+
+    def start(self) -> Graph:
+        """Start every node (in order); their output goes to ``log_dir/<name>.log`` or is inherited."""
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+        for spec in self.specs:
+            out = open(self.log_dir / f'{spec.label}.log', 'w') if self.log_dir else None  # noqa: SIM115
+            cmd = node_command(spec, config=self.config)
+            LOG.info('starting %s: %s', spec.label, ' '.join(cmd))
+            self.procs[spec.label] = subprocess.Popen(
+                cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT if out else None
+            )
+            if out is not None:
+                out.close()
+        return self
+
+    def poll(self) -> dict[str, int | None]:
+        """Exit status of every node (None while running)."""
+        return {name: p.poll() for name, p in self.procs.items()}
+
+    def wait_for(self, name: str, timeout: float | None = None) -> int | None:
+        """Wait until node ``name`` exits; its exit status, or None on timeout."""
+        try:
+            return self.procs[name].wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def stop(self) -> dict[str, int | None]:
+        """SIGINT every running node, wait up to ``grace_s``, then SIGTERM and finally SIGKILL."""
+        for sig, wait in ((signal.SIGINT, self.grace_s), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+            running = [p for p in self.procs.values() if p.poll() is None]
+            if not running:
+                break
+            for p in running:
+                p.send_signal(sig)
+            deadline = time.monotonic() + wait
+            for p in running:
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        return self.poll()
+
+    def __enter__(self) -> Graph:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

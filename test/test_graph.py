@@ -1,0 +1,109 @@
+"""``ibr graph`` process specs and the launch file (checked against stand-in launch modules).
+
+ros2launch has no wheels here, so the launch file is executed with minimal fake ``launch`` and
+``launch_ros`` modules that record what it would start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import types
+
+import pytest
+
+from ibr_ros.cli.graph import build_specs
+from ibr_ros.errors import UserError
+from ibr_ros.graph import NodeSpec, node_command
+
+
+def _args(**kw) -> argparse.Namespace:
+    base = {'bag': None, 'no_player': False, 'rate': 1.0, 'loop': False, 'refiners': 1, 'set': []}
+    return argparse.Namespace(**{**base, **kw})
+
+
+def test_specs_with_sharded_refiners(repo):
+    specs = build_specs(
+        _args(bag=str(repo / 'bags' / 'synth_orbit_s0'), refiners=2, set=['view_renderer.width=320'])
+    )
+    assert [s.label for s in specs] == [
+        'bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer'
+    ]  # fmt: skip
+    assert specs[2].params == {'worker_index': 0, 'num_workers': 2}
+    assert specs[4].params == {'width': '320'}
+    cmd = node_command(specs[3], config=repo / 'config', python='python3')
+    assert cmd[:4] == ['python3', '-m', 'ibr_ros.nodes.depth_refiner', '--ros-args']
+    assert cmd[-2:] == ['-r', '__node:=depth_refiner_1']
+    assert '-p' in cmd
+    assert 'num_workers:=2' in cmd
+
+
+def test_bad_graph_options():
+    with pytest.raises(UserError, match='--bag is required'):
+        build_specs(_args())
+    with pytest.raises(UserError, match='no such bag'):
+        build_specs(_args(bag='/nonexistent'))
+    with pytest.raises(UserError, match='unknown nodes'):
+        build_specs(_args(no_player=True, set=['renderer.x=1']))
+    with pytest.raises(UserError, match=r'NODE\.PARAM=VALUE'):
+        build_specs(_args(no_player=True, set=['oops']))
+    assert node_command(NodeSpec('frame_subsampler', {'compressed': True}), python='p')[-2:] == [
+        '-p', 'compressed:=true'
+    ]  # fmt: skip
+
+
+def _fake_launch_modules(monkeypatch, share: str) -> list:
+    started: list = []
+
+    class Node:
+        def __init__(self, **kw):
+            started.append(kw)
+
+    class LaunchConfiguration:
+        def __init__(self, name):
+            self.name = name
+
+        def perform(self, context):
+            return context[self.name]
+
+    class OpaqueFunction:
+        def __init__(self, function):
+            self.function = function
+
+    launch = types.ModuleType('launch')
+    launch.LaunchDescription = lambda actions: actions
+    actions = types.ModuleType('launch.actions')
+    actions.DeclareLaunchArgument = lambda name, default_value='', description='': (name, default_value)
+    actions.OpaqueFunction = OpaqueFunction
+    subs = types.ModuleType('launch.substitutions')
+    subs.LaunchConfiguration = LaunchConfiguration
+    launch_ros = types.ModuleType('launch_ros')
+    ros_actions = types.ModuleType('launch_ros.actions')
+    ros_actions.Node = Node
+    ament = types.ModuleType('ament_index_python.packages')
+    ament.get_package_share_directory = lambda name: share
+    for name, mod in {
+        'launch': launch, 'launch.actions': actions, 'launch.substitutions': subs,
+        'launch_ros': launch_ros, 'launch_ros.actions': ros_actions, 'ament_index_python.packages': ament,
+    }.items():  # fmt: skip
+        monkeypatch.setitem(sys.modules, name, mod)
+    return started
+
+
+def test_launch_file_starts_the_same_nodes(repo, monkeypatch):
+    started = _fake_launch_modules(monkeypatch, '/opt/share/ibr_ros')
+    spec = importlib.util.spec_from_file_location('ibr_graph_launch', repo / 'launch' / 'ibr_graph.launch.py')
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    desc = module.generate_launch_description()
+    defaults = dict(d for d in desc if isinstance(d, tuple))
+    assert defaults['config_dir'] == '/opt/share/ibr_ros/config'
+    opaque = desc[-1]
+    context = {'config_dir': str(repo / 'config'), 'bag': '/data/flight', 'rate': '2.0', 'refiners': '2'}
+    opaque.function(context)
+    names = [n['name'] for n in started]
+    assert names == ['bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer']
+    assert started[0]['parameters'][1] == {'bag': '/data/flight', 'rate': 2.0}
+    assert started[3]['parameters'][1] == {'worker_index': 1, 'num_workers': 2}
+    assert all(n['package'] == 'ibr_ros' for n in started)
