@@ -43,7 +43,14 @@ from ibr_ros.core.remap import linear_remap, lut_remap, median_factor_remap
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 
-__all__ = ['DepthEvalOptions', 'depth_metrics', 'evaluate_depth', 'write_atomic']
+__all__ = [
+    'DepthEvalOptions',
+    'depth_metrics',
+    'evaluate_depth',
+    'load_views',
+    'sparse_points',
+    'write_atomic',
+]
 
 LOG = logging.getLogger(__name__)
 
@@ -95,18 +102,23 @@ def _abs_rel(pred: NDArray, ref: NDArray, mask: NDArray) -> float:
     )
 
 
-def _load_views(bag: Path, o: DepthEvalOptions) -> list[tuple[int, MvsView]]:
+def load_views(bag: Path, step: int, max_views: int, first: int = 0) -> list[tuple[int, MvsView]]:
+    """``(frame index, view)`` of every ``step``-th image from ``first`` on (at most ``max_views``).
+
+    Views carry the bag's decoded image, exact pose and pinhole intrinsics. Raises UserError for a
+    bag without the topics of `ibr bag synth` or with fewer than 2 selected views.
+    """
     with open_bag(bag) as reader:
         for t in (TOPICS['image'], TOPICS['pose'], TOPICS['camera_info']):
             if t not in reader.topics:
-                raise UserError(f'{bag}: no {t} topic: `ibr eval depth` needs a bag made by `ibr bag synth`')
+                raise UserError(f'{bag}: no {t} topic: `ibr eval` needs a bag made by `ibr bag synth`')
         poses = {
             m.timestamp_ns: msg_utils.pose_stamped_to_matrix(m.msg) for m in reader.messages([TOPICS['pose']])
         }
         infos = {m.timestamp_ns: m.msg for m in reader.messages([TOPICS['camera_info']])}
         views = []
         for i, m in enumerate(reader.messages([TOPICS['image']])):
-            if i < o.first or (i - o.first) % o.step or len(views) >= o.max_views:
+            if i < first or (i - first) % step or len(views) >= max_views:
                 continue
             if m.timestamp_ns not in poses or m.timestamp_ns not in infos:
                 raise UserError(f'{bag}: image at {m.timestamp_ns} ns has no pose or camera_info')
@@ -118,7 +130,8 @@ def _load_views(bag: Path, o: DepthEvalOptions) -> list[tuple[int, MvsView]]:
     return views
 
 
-def _sparse_points(gts: list, views: list[MvsView], seed: int, per_view: int = 500) -> NDArray[np.float64]:
+def sparse_points(gts: list, views: list[MvsView], seed: int, per_view: int = 500) -> NDArray[np.float64]:
+    """World points (m) standing in for sparse SfM points: ``per_view`` random GT pixels of each view."""
     rng = np.random.default_rng(seed)
     pts = []
     for f, v in zip(gts, views, strict=True):
@@ -176,12 +189,12 @@ def evaluate_depth(
     """Run the evaluation (see module docstring); returns the JSON summary."""
     o = options or DepthEvalOptions()
     gt_renderer = GroundTruthRenderer(Path(bag))
-    picked = _load_views(Path(bag), o)
+    picked = load_views(Path(bag), o.step, o.max_views, o.first)
     views = [v for _, v in picked]
     gts = [gt_renderer.render(v.t_wc, v.camera) for v in views]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    points = _sparse_points(gts, views, o.seed)
+    points = sparse_points(gts, views, o.seed)
     total = 2 * len(views)
     mvs_results = compute_depth_maps(
         views,
