@@ -6,4 +6,5 @@ Kept free of imports so that setup.py can read it without the package's dependen
 CONSOLE_SCRIPTS: dict[str, str] = {
     'ibr': 'ibr_ros.cli.main:main',
     'frame_subsampler': 'ibr_ros.nodes.frame_subsampler:main',
+    'bag_player': 'ibr_ros.nodes.bag_player:main',
 }

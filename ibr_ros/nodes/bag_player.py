@@ -1,0 +1,341 @@
+"""``bag_player``: replays a bag with its original message types and publishes ``/clock``.
+
+Reads whatever :func:`ibr_ros.bag.open_bag` reads (rosbag2 directory, ``.mcap``, ``.db3``, ROS 1
+``.bag``; ROS 1 messages arrive converted to ROS 2 CDR) and publishes every message's serialised
+bytes unchanged on the bag's topic (after ``remap``), reliable with ``qos_depth`` (which reaches best
+effort and reliable subscribers alike). Topics whose type has no Python message class installed, or
+whose data is not Jazzy CDR, are skipped with a warning.
+
+Messages are paced on the wall clock: bag time since ``start_offset``, divided by ``rate``
+(0 = as fast as possible). ``/clock`` (``rosgraph_msgs/Clock``) carries the playback's bag time at
+``clock_rate_hz``, never ahead of the next message, so nodes can run with ``use_sim_time``. With
+``wait_for_subscribers`` > 0 playback starts once every topic has that many matched subscriptions.
+DDS repairs what a reliable subscriber missed (within a heartbeat period, 3 s with Fast DDS) as long
+as the publisher still holds it: at rate > 0 ``qos_depth`` should cover a few seconds of each topic;
+at rate 0 the player waits for acknowledgements before it would overwrite an unacknowledged message,
+so reliable subscribers receive everything. The process exits 0 when the bag is done (unless
+``loop``), after reliable subscribers acknowledged everything or ``ack_timeout_s``; a bag or parameter
+that cannot be used is one error line and exit code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import rclpy
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+
+import msg_utils
+from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, open_bag
+from ibr_ros.errors import UserError
+from ibr_ros.nodes.common import declare, reliable_qos
+from msg_utils.flavor import message_class
+
+EXIT_BAD_INPUT = 2
+
+
+@dataclass
+class _Out:
+    """A replayed topic: where it goes and how far it got."""
+
+    name: str
+    publisher: Publisher
+    count: int = 0
+    unacked: int = 0  # upper bound of the messages in the publisher's history
+
+
+def parse_remaps(pairs: list[str]) -> dict[str, str]:
+    """``['from:=to', ...]`` -> ``{from: to}``; raises ValueError on a malformed pair."""
+    remaps: dict[str, str] = {}
+    for pair in pairs:
+        src, sep, dst = pair.partition(':=')
+        if not sep or not src.strip() or not dst.strip():
+            raise ValueError(f"parameter remap: {pair!r} is not of the form 'from:=to'")
+        remaps[src.strip()] = dst.strip()
+    return remaps
+
+
+class BagPlayer(Node):
+    """Bag replay node (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__('bag_player')
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        big = {'limits': (0.0, 1e9)}
+        self.bag_path = str(p('bag', '', 'bag to replay: rosbag2 directory, .mcap, .db3 or ROS 1 .bag'))
+        self.rate = float(p('rate', 1.0, 'playback speed factor; 0 = as fast as possible', **big))
+        self.loop = bool(p('loop', False, 'start again at the end instead of exiting'))
+        self.start_offset = float(p('start_offset', 0.0, 'skip this many seconds of the bag', **big))
+        self.duration = float(p('duration', 0.0, 'play this many seconds; 0 = to the end', **big))
+        topics = p('topics', Parameter.Type.STRING_ARRAY, 'bag topics to play; empty = all')
+        remaps = p('remap', Parameter.Type.STRING_ARRAY, "'from:=to' renames of bag topics")
+        self.publish_clock = bool(p('publish_clock', True, 'publish the bag time on /clock'))
+        clock_hz = float(p('clock_rate_hz', 100.0, '/clock messages per second', limits=(0.1, 1e4)))
+        self.clock_period = 1.0 / clock_hz
+        n_subs = p('wait_for_subscribers', 0, 'start at this many subscriptions per topic', limits=(0, 1000))
+        self.wait_for = int(n_subs)
+        self.wait_timeout = float(p('wait_timeout_s', 30.0, '... or after this long; 0 = never', **big))
+        self.depth = int(p('qos_depth', 100, 'history depth of the reliable publishers', limits=(1, 1000000)))
+        self.ack_timeout = float(p('ack_timeout_s', 10.0, 'longest wait for acknowledgements', **big))
+        self.progress_s = float(p('progress_s', 5.0, 'progress log period (s); 0 = off', **big))
+        if not self.bag_path:
+            raise UserError('parameter bag is required (-p bag:=PATH)')
+        remap = parse_remaps(list(remaps or []))
+
+        self.bag: BagReader = open_bag(self.bag_path).open()  # BagError names the path
+        available = self.bag.topics
+        wanted = list(topics or []) or list(available)
+        if missing := [t for t in wanted if t not in available]:
+            raise UserError(f'{self.bag_path}: no topic {", ".join(missing)} in the bag')
+        if unknown := [t for t in remap if t not in wanted]:
+            self.get_logger().warning(f'remap of topics that are not played: {", ".join(unknown)}')
+        self.outs: dict[str, _Out] = {}
+        qos = reliable_qos(self.depth)
+        for topic in wanted:
+            info = available[topic]
+            problem = self._unplayable(info.msgtype, info.serialization_format)
+            if problem:
+                self.get_logger().warning(f'skipping {topic} ({info.msgtype}): {problem}')
+                continue
+            cls = message_class(info.msgtype)
+            name = remap.get(topic, topic)
+            self.outs[topic] = _Out(name, self.create_publisher(cls, name, qos))
+        if not self.outs:
+            raise UserError(f'{self.bag_path}: none of the topics can be played')
+        self.clock_pub = (
+            self.create_publisher(Clock, '/clock', reliable_qos(10)) if self.publish_clock else None
+        )
+        self.first_ns = self.bag.start_ns + round(self.start_offset * 1e9)
+        self.stop_ns = (
+            self.first_ns + round(self.duration * 1e9) if self.duration > 0 else self.bag.end_ns + 1
+        )
+        if self.first_ns > self.bag.end_ns:
+            raise UserError(f'{self.bag_path}: start_offset {self.start_offset} s is past the end of the bag')
+        self._last_clock_wall = -1.0
+        self._clock_ns = -1
+        self.stopping = threading.Event()
+        self.finished: Future = Future()
+        self._thread = threading.Thread(target=self._run, name='bag_player', daemon=True)
+        self.get_logger().info(
+            f'playing {self.bag_path} ({self.bag.storage}, {self.bag.duration_s:.1f} s): '
+            + ', '.join(f'{t} -> {o.name}' if t != o.name else t for t, o in self.outs.items())
+            + f' at rate {self.rate:g}'
+            + (' (as fast as possible)' if self.rate == 0 else '')
+        )
+
+    def _unplayable(self, msgtype: str, serialization_format: str) -> str:
+        """Why a topic of ``msgtype`` cannot be replayed as is; '' when it can."""
+        if serialization_format != 'cdr':
+            return f'{serialization_format} data of a type ROS 2 Jazzy does not know'
+        try:
+            message_class(msgtype)
+        except msg_utils.MessageError:
+            return 'no Python message class installed'
+        if self.bag.storage == 'ros1':  # converted to Jazzy's definition by the reader
+            return ''
+        try:
+            own = self.bag.typestore
+            if msgtype in own.types and own.hash_rihs01(msgtype) != TYPESTORE.hash_rihs01(msgtype):
+                return 'the bag defines the type differently from ROS 2 Jazzy'
+        except Exception:  # definitions that cannot be hashed: trust the type name
+            pass
+        return ''
+
+    # -- playback thread ---------------------------------------------------------------------
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self.stopping.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=10.0)
+
+    def _run(self) -> None:
+        try:
+            self._wait_for_subscribers()
+            passes = 0
+            while not self.stopping.is_set():
+                self._play_once(passes)
+                passes += 1
+                if not self.loop:
+                    break
+            if not self.stopping.is_set():
+                self._wait_acked()
+        except Exception as exc:  # a shutdown while publishing raises; anything else is logged
+            if not self.stopping.is_set() and self.context.ok():
+                self.get_logger().error(f'playback failed: {exc}')
+                self.finished.set_result(EXIT_BAD_INPUT if isinstance(exc, UserError) else 1)
+                return
+        self.finished.set_result(0)
+
+    def _wait_for_subscribers(self) -> None:
+        if self.wait_for <= 0:
+            return
+        self.get_logger().info(f'waiting for {self.wait_for} subscription(s) on every topic')
+        deadline = time.monotonic() + self.wait_timeout if self.wait_timeout > 0 else float('inf')
+        while not self.stopping.is_set():
+            short = [
+                o.name for o in self.outs.values() if o.publisher.get_subscription_count() < self.wait_for
+            ]
+            if not short:
+                return
+            if time.monotonic() > deadline:
+                self.get_logger().warning(
+                    f'starting after {self.wait_timeout:g} s; too few subscriptions on {", ".join(short)}'
+                )
+                return
+            self._publish_clock(self.first_ns, force=True)
+            self.stopping.wait(0.02)
+
+    def _messages(self) -> Iterator[BagMessage]:
+        return self.bag.messages(list(self.outs), start_ns=self.first_ns, end_ns=self.stop_ns)
+
+    def _play_once(self, passes: int) -> None:
+        start_wall = time.monotonic()
+        last_progress = start_wall
+        span_ns = max(1, min(self.stop_ns - 1, self.bag.end_ns) - self.first_ns)
+        count = last_ns = 0
+        self._clock_ns = -1  # a new pass may go back in time
+        self._publish_clock(self.first_ns, force=True)
+        for msg in self._messages():
+            if self.rate > 0:
+                due = start_wall + (msg.timestamp_ns - self.first_ns) / 1e9 / self.rate
+                if not self._sleep_until(due, start_wall, msg.timestamp_ns):
+                    return
+            elif self.stopping.is_set():
+                return
+            self._publish_clock(msg.timestamp_ns)
+            out = self.outs[msg.topic]
+            if self.rate == 0:
+                self._flow_control(out)
+            out.publisher.publish(msg.rawdata)
+            out.count += 1
+            out.unacked += 1
+            count += 1
+            last_ns = msg.timestamp_ns
+            now = time.monotonic()
+            if self.progress_s > 0 and now - last_progress >= self.progress_s:
+                last_progress = now
+                self.get_logger().info(
+                    f'{count} messages, bag time {(msg.timestamp_ns - self.bag.start_ns) / 1e9:.2f} s '
+                    f'({100.0 * (msg.timestamp_ns - self.first_ns) / span_ns:.0f}%)'
+                )
+        if self.stopping.is_set():
+            return
+        if count:
+            self._publish_clock(last_ns, force=True)  # the last message's time, whatever the ticks
+        wall = time.monotonic() - start_wall
+        what = f'pass {passes + 1} done' if self.loop else 'done'
+        self.get_logger().info(
+            f'{what}: {count} messages in {wall:.2f} s ({count / max(wall, 1e-9):.0f} msg/s), '
+            + ', '.join(f'{o.name} {o.count}' for o in self.outs.values())
+        )
+
+    def _flow_control(self, out: _Out) -> None:
+        """At rate 0: never overwrite a message that a reliable subscriber has not acknowledged.
+
+        Fast DDS asks for acknowledgements with every message once the history is full (else every
+        3 s), so waiting when ``qos_depth`` messages may be unacknowledged costs milliseconds.
+        """
+        if out.unacked >= self.depth // 2 and out.publisher.wait_for_all_acked(Duration()):
+            out.unacked = 0  # all acknowledged (and dropped from the history): cheap check, no wait
+        if out.unacked < self.depth:
+            return
+        if not self._acked(out, self.ack_timeout) and not self.stopping.is_set():
+            self.get_logger().warning(
+                f'{out.name}: subscribers did not acknowledge within {self.ack_timeout:g} s; going on',
+                throttle_duration_sec=10.0,
+            )
+        out.unacked = 0
+
+    def _sleep_until(self, due: float, start_wall: float, next_ns: int) -> bool:
+        """Sleep until wall time ``due``, publishing /clock meanwhile; False if stopping."""
+        while True:
+            now = time.monotonic()
+            if self.stopping.is_set():
+                return False
+            if now >= due:
+                return True
+            bag_ns = self.first_ns + round((now - start_wall) * self.rate * 1e9)
+            self._publish_clock(min(bag_ns, next_ns))
+            wake = due if self.clock_pub is None else min(due, self._last_clock_wall + self.clock_period)
+            self.stopping.wait(max(0.0, wake - now))
+
+    def _publish_clock(self, bag_ns: int, *, force: bool = False) -> None:
+        """Publish ``bag_ns`` on /clock if a tick is due (or ``force``); the clock never goes back."""
+        if self.clock_pub is None:
+            return
+        now = time.monotonic()
+        if not force and now - self._last_clock_wall < self.clock_period:
+            return
+        self._last_clock_wall = now
+        self._clock_ns = max(self._clock_ns, bag_ns)
+        self.clock_pub.publish(Clock(clock=msg_utils.ns_to_stamp(self._clock_ns)))
+
+    def _acked(self, out: _Out, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for all of ``out``'s messages to be acknowledged; False if not."""
+        deadline = time.monotonic() + timeout
+        while not self.stopping.is_set():
+            left = deadline - time.monotonic()
+            if out.publisher.wait_for_all_acked(Duration(seconds=min(0.1, max(0.0, left)))):
+                return True
+            if left <= 0:
+                break
+        return False
+
+    def _wait_acked(self) -> None:
+        """Give reliable subscribers up to ``ack_timeout_s`` to acknowledge (or get repaired) everything."""
+        deadline = time.monotonic() + self.ack_timeout
+        late = [o.name for o in self.outs.values() if not self._acked(o, deadline - time.monotonic())]
+        if late and not self.stopping.is_set():
+            self.get_logger().warning(f'not acknowledged within {self.ack_timeout:g} s on {", ".join(late)}')
+
+    def destroy_node(self) -> None:
+        self.stop()
+        self.bag.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Play the bag; 0 when done (or interrupted), 2 when the bag or a parameter is bad."""
+    try:
+        rclpy.init(args=args if args is not None else sys.argv)
+    except RCLError as exc:  # malformed --ros-args; rcl has logged the details
+        print(f'bag_player: {exc}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    node: BagPlayer | None = None
+    code = 0
+    try:
+        node = BagPlayer()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.start()
+        executor.spin_until_future_complete(node.finished)
+        code = node.finished.result() if node.finished.done() else 0
+    except (UserError, ValueError, ParameterException) as exc:
+        rclpy.logging.get_logger('bag_player').error(str(exc))
+        code = EXIT_BAD_INPUT
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
