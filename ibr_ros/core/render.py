@@ -722,43 +722,86 @@ class NovelViewRenderer:
 
     Raises ValueError for structurally malformed views (wrong dtype/shape, camera size mismatch).
     Views without usable depth or with an invalid pose are kept out and listed in
-    ``skipped_views``.
+    ``skipped_views``. Views may be appended (:meth:`add_view`) or replaced (:meth:`replace_view`)
+    later, e.g. as a keyframe model grows; indices never change.
     """
 
     def __init__(self, views: Sequence[SourceView], config: RenderConfig | None = None) -> None:
         self.config = config or RenderConfig()
         self.views = list(views)
+        for i, v in enumerate(self.views):
+            self._check_view(i, v)
         n = len(self.views)
         self._centres = np.full((n, 3), np.nan)
         self._axes = np.full((n, 3), np.nan)
         self._usable = np.zeros(n, np.bool_)
+        self._view_depth = [math.nan] * n  # per view: median finite depth (NaN: none)
         self._skip_reason: dict[int, str] = {}
-        scene_depth = []
-        for i, v in enumerate(self.views):
-            self._check_view(i, v)
-            try:
-                t = validate_pose(v.t_wc, field=f'views[{i}].t_wc')
-            except GeometryError as e:
-                self._skip_reason[i] = str(e)
-                continue
-            if v.depth is None:
-                self._skip_reason[i] = 'no depth'
-                continue
-            sub = np.asarray(v.depth[::7, ::7], dtype=np.float32)
-            known = sub[sub > 0]  # NaN compares False
-            if known.size == 0:
-                self._skip_reason[i] = 'depth has no known values'
-                continue
-            finite = known[np.isfinite(known)]
-            if finite.size:
-                scene_depth.append(float(np.median(finite)))
-            self._centres[i] = t[:3, 3]
-            self._axes[i] = t[:3, 2]
-            self._usable[i] = True
-        self._scene_depth = float(np.median(scene_depth)) if scene_depth else math.nan
+        self._scene_depth = math.nan
         self._cache: OrderedDict[int, _ViewCache] = OrderedDict()
         self.cache_hits = 0
         self.cache_misses = 0
+        for i in range(n):
+            self._admit(i)
+        self._update_scene_depth()
+
+    def _admit(self, i: int) -> None:
+        """Decide whether view ``i`` is usable and record its centre, axis and median depth."""
+        v = self.views[i]
+        self._skip_reason.pop(i, None)
+        self._cache.pop(i, None)
+        self._centres[i] = self._axes[i] = np.nan
+        self._usable[i] = False
+        self._view_depth[i] = math.nan
+        try:
+            t = validate_pose(v.t_wc, field=f'views[{i}].t_wc')
+        except GeometryError as e:
+            self._skip_reason[i] = str(e)
+            return
+        if v.depth is None:
+            self._skip_reason[i] = 'no depth'
+            return
+        sub = np.asarray(v.depth[::7, ::7], dtype=np.float32)
+        known = sub[sub > 0]  # NaN compares False
+        if known.size == 0:
+            self._skip_reason[i] = 'depth has no known values'
+            return
+        finite = known[np.isfinite(known)]
+        if finite.size:
+            self._view_depth[i] = float(np.median(finite))
+        self._centres[i] = t[:3, 3]
+        self._axes[i] = t[:3, 2]
+        self._usable[i] = True
+
+    def _update_scene_depth(self) -> None:
+        d = [x for x in self._view_depth if math.isfinite(x)]
+        self._scene_depth = float(np.median(d)) if d else math.nan
+
+    def add_view(self, view: SourceView) -> int:
+        """Append a source view (its cache is built on first use); returns its index.
+
+        Same checks as the constructor: ValueError for a malformed view, an unusable one is listed
+        in ``skipped_views``. The scene depth (distance limit) is updated.
+        """
+        i = len(self.views)
+        self._check_view(i, view)
+        self.views.append(view)
+        self._centres = np.vstack([self._centres, np.full((1, 3), np.nan)])
+        self._axes = np.vstack([self._axes, np.full((1, 3), np.nan)])
+        self._usable = np.append(self._usable, False)
+        self._view_depth.append(math.nan)
+        self._admit(i)
+        self._update_scene_depth()
+        return i
+
+    def replace_view(self, index: int, view: SourceView) -> None:
+        """Replace view ``index`` (e.g. with refined depth); its cached data is dropped."""
+        if not 0 <= index < len(self.views):
+            raise ValueError(f'view index {index} is out of range for {len(self.views)} views')
+        self._check_view(index, view)
+        self.views[index] = view
+        self._admit(index)
+        self._update_scene_depth()
 
     # -- views and cache ----------------------------------------------------------------------
     @staticmethod
