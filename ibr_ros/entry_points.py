@@ -7,4 +7,6 @@ CONSOLE_SCRIPTS: dict[str, str] = {
     'ibr': 'ibr_ros.cli.main:main',
     'frame_subsampler': 'ibr_ros.nodes.frame_subsampler:main',
     'bag_player': 'ibr_ros.nodes.bag_player:main',
+    'depth_refiner': 'ibr_ros.nodes.depth_refiner:main',
+    'view_renderer': 'ibr_ros.nodes.view_renderer:main',
 }

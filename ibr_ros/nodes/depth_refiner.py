@@ -1,0 +1,397 @@
+"""``depth_refiner``: MVS + refined depth for every keyframe, shardable over several processes.
+
+Subscribes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image``),
+``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), matched by
+identical header stamps.
+
+A keyframe is refined once :func:`~ibr_ros.core.mvs.select_neighbours` finds ``min_neighbours``
+source views for it among the keyframes received so far, or, with at least one neighbour, when
+``flush_after_s`` passed without a new keyframe (the end of a flight). With ``refine_again`` it is
+refined again whenever more neighbours (up to ``max_neighbours``) become available. Refinement:
+:func:`~ibr_ros.core.mvs.compute_depth_maps` on the keyframe and its neighbours, then
+:meth:`~ibr_ros.core.refine.DepthRefiner.refine_from_mvs`.
+
+Depth range of the MVS sweep: ``depth_range`` ``[near, far]`` (m) when set; else
+``[near_ratio, far_ratio] x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
+when set, else the median distance along the keyframe's optical axis to where it passes closest
+to the optical axes of the other keyframes (axes 3-90 deg apart, the point in front of both
+cameras; oblique and orbit flights), else (parallel axes, e.g. a nadir survey) 12.5 x the mean
+distance to the two nearest keyframes (the inverse of the frame_subsampler's 0.08 baseline
+ratio), with a warning to set ``scene_depth_m``.
+
+Publishes (reliable, transient local): ``keyframes/depth`` (``sensor_msgs/Image`` ``32FC1``
+metres, REP-118: NaN unknown) and ``keyframes/depth/camera_info``, both with the keyframe's stamp.
+With ``publish_debug`` (reliable, volatile): ``depth/mvs``, ``depth/mono_remapped`` (``32FC1``),
+``depth/sky_mask`` (``mono8``, 255 = sky), ``depth/preview`` and ``depth/mvs/preview`` (``rgb8``
+turbo-coloured inverse depth).
+
+Sharding: with ``num_workers`` > 1 every process receives all keyframes (they are everybody's
+neighbours) but refines only those whose stamp hashes to its ``worker_index``
+(:func:`shard_of`, independent of arrival order), so each keyframe is refined exactly once.
+
+The heavy work runs on one worker thread; the executor thread only stores messages. Frames
+without a pose are not refined: SfM mode (registering pose-less keyframes) is not implemented.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+
+import msg_utils
+from ibr_ros.core.camera import CameraError, PinholeCamera
+from ibr_ros.core.geometry import GeometryError
+from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps, select_neighbours
+from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node
+
+BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
+DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
+
+
+def shard_of(stamp_ns: int, num_workers: int) -> int:
+    """The worker (0 .. ``num_workers`` - 1) that refines the keyframe stamped ``stamp_ns``."""
+    digest = hashlib.blake2b(int(stamp_ns).to_bytes(8, 'little', signed=True), digest_size=8).digest()
+    return int.from_bytes(digest, 'little') % num_workers
+
+
+def axis_scene_depth(t_wc: np.ndarray, others: list[np.ndarray]) -> float | None:
+    """Median distance along the optical axis of ``t_wc`` to its closest approach to the other axes."""
+    c0, a0 = t_wc[:3, 3], t_wc[:3, 2]
+    dists = []
+    for t in others:
+        c1, a1 = t[:3, 3], t[:3, 2]
+        b = float(a0 @ a1)
+        if not math.cos(math.radians(90.0)) <= b <= math.cos(math.radians(3.0)):
+            continue
+        w = c0 - c1
+        d, e = float(a0 @ w), float(a1 @ w)
+        s, u = (b * e - d) / (1 - b * b), (e - b * d) / (1 - b * b)
+        if s > 0 and u > 0:
+            dists.append(s)
+    return float(np.median(dists)) if dists else None
+
+
+def colourise(depth: np.ndarray) -> np.ndarray:
+    """rgb8 turbo colouring of inverse depth (2-98th percentile), black where unknown."""
+    ok = np.isfinite(depth) & (depth > 0)
+    out = np.zeros((*depth.shape, 3), np.uint8)
+    if not ok.any():
+        return out
+    inv = 1.0 / depth[ok]
+    lo, hi = np.percentile(inv, (2, 98))
+    grey = np.zeros(depth.shape, np.uint8)
+    grey[ok] = np.clip((inv - lo) / max(hi - lo, 1e-12) * 255, 0, 255).astype(np.uint8)
+    out[:] = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+    out[~ok] = 0
+    return out
+
+
+@dataclass
+class _Pending:
+    image: np.ndarray | None = None
+    info: CameraInfo | None = None
+    camera: PinholeCamera | None = None
+    pose: np.ndarray | None = None
+
+
+@dataclass
+class _Keyframe:
+    stamp: int
+    view: MvsView
+    info: CameraInfo
+    mine: bool
+    used: tuple[int, ...] = ()  # neighbour stamps of the last successful refinement
+    failed_with: int = -1  # neighbour count of the last failed attempt
+    reported: set[str] = field(default_factory=set)
+
+
+class DepthRefinerNode(Node):
+    """Keyframe depth refinement node (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__('depth_refiner')
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        self.num_workers = int(
+            p('num_workers', 1, 'refiner processes sharing the keyframes', limits=(1, 1024))
+        )
+        self.worker_index = int(p('worker_index', 0, 'this process: 0 .. num_workers - 1', limits=(0, 1023)))
+        self.min_neighbours = int(p('min_neighbours', 2, 'neighbours needed to refine', limits=(1, 16)))
+        max_nb = int(p('max_neighbours', 4, 'MVS source views per keyframe', limits=(1, 16)))
+        self.flush_after_s = float(
+            p('flush_after_s', 5.0, 'refine with fewer neighbours after this quiet time (s), 0 = never',
+              limits=(0.0, 1e6))
+        )  # fmt: skip
+        self.refine_again = bool(p('refine_again', False, 'refine again when more neighbours arrive'))
+        rng = p('depth_range', [0.0, 0.0], 'MVS [near, far] in metres; [0, 0] = automatic')
+        self.scene_depth = float(
+            p('scene_depth_m', 0.0, 'scene depth hint (m), 0 = estimate', limits=(0.0, 1e6))
+        )
+        self.near_ratio = float(p('near_ratio', 0.25, 'near = this x scene depth', limits=(1e-3, 1.0)))
+        self.far_ratio = float(p('far_ratio', 4.0, 'far = this x scene depth', limits=(1.0, 1e4)))
+        self.publish_debug = bool(p('publish_debug', False, 'publish depth/* debug images'))
+        self.max_pending = int(
+            p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
+        )
+        sky = str(p('sky', 'fallback', "sky mask: 'fallback' (horizon + colour cues) or 'none'"))
+        if self.worker_index >= self.num_workers:
+            raise ValueError(f'worker_index {self.worker_index} must be < num_workers {self.num_workers}')
+        if max_nb < self.min_neighbours:
+            raise ValueError(f'max_neighbours {max_nb} must be >= min_neighbours {self.min_neighbours}')
+        self.depth_range = (float(rng[0]), float(rng[1])) if len(rng) == 2 and 0 < rng[0] < rng[1] else None
+        if self.depth_range is None and any(rng):
+            raise ValueError(
+                f'depth_range must be [near, far] with 0 < near < far, or [0, 0]; got {list(rng)}'
+            )
+        self.mvs = MvsOptions(max_neighbours=max_nb)
+        names = ('max_neighbours', 'min_angle_deg', 'max_angle_deg', 'target_angle_deg', 'min_overlap')
+        self._nb_kw = {k: getattr(self.mvs, k) for k in (*names, 'max_view_angle_deg')}
+        self.refiner = DepthRefiner(RefinerConfig(sky=sky, mvs=self.mvs))
+        self.bad = BadInput(self)
+        self.pending: dict[int, _Pending] = {}
+        self.keyframes: dict[int, _Keyframe] = {}
+        self.refine_times: list[float] = []
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._version = 0
+        self._last_arrival = time.monotonic()
+        self._warned: set[str] = set()
+        self._poseless: set[int] = set()  # frames with image and camera_info before any pose was seen
+        self.poses_seen = 0
+        qos = model_qos()
+        self.create_subscription(Image, 'keyframes/image', self.on_image, qos)
+        self.create_subscription(CameraInfo, 'keyframes/camera_info', self.on_info, qos)
+        self.create_subscription(PoseStamped, 'keyframes/pose', self.on_pose, qos)
+        self.pub_depth = self.create_publisher(Image, 'keyframes/depth', qos)
+        self.pub_info = self.create_publisher(CameraInfo, 'keyframes/depth/camera_info', qos)
+        self.debug = {
+            n: self.create_publisher(Image, n, reliable_qos()) for n in DEBUG_TOPICS if self.publish_debug
+        }
+        self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f'worker {self.worker_index}/{self.num_workers}: refining keyframes with >= '
+            f'{self.min_neighbours} of up to {max_nb} neighbours; '
+            f'depth range {self.depth_range or "automatic"}'
+        )
+
+    # -- input ----------------------------------------------------------------------------------
+    def _slot(self, stamp: int) -> _Pending | None:
+        """The pending frame of ``stamp``; when full, the oldest frame (maybe this one) is dropped."""
+        if stamp not in self.pending and len(self.pending) >= self.max_pending:
+            oldest = min(self.pending)
+            if stamp < oldest:
+                self.bad('incomplete', f'message of keyframe {stamp} ns is older than all pending ones')
+                return None
+            del self.pending[oldest]
+            self.bad('incomplete', f'keyframe at {oldest} ns never got all of image, camera_info and pose')
+        return self.pending.setdefault(stamp, _Pending())
+
+    def on_image(self, msg: Image) -> None:
+        try:
+            rgb = np.array(msg_utils.image_to_rgb(msg))  # a copy, detached from the message
+        except BAD_MESSAGE as exc:
+            self.bad('image', str(exc))
+            return
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        if (slot := self._slot(stamp)) is not None:
+            slot.image = rgb
+            self._try(stamp)
+
+    def on_info(self, msg: CameraInfo) -> None:
+        try:
+            camera = msg_utils.camera_info_to_pinhole(msg)
+        except BAD_MESSAGE as exc:
+            self.bad('camera_info', str(exc))
+            return
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        if (slot := self._slot(stamp)) is not None:
+            slot.info, slot.camera = msg, camera
+            self._try(stamp)
+
+    def on_pose(self, msg: PoseStamped) -> None:
+        try:
+            t_wc = msg_utils.pose_stamped_to_matrix(msg)
+        except BAD_MESSAGE as exc:
+            self.bad('pose', str(exc))
+            return
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        self.poses_seen += 1
+        if (slot := self._slot(stamp)) is not None:
+            slot.pose = t_wc
+            self._try(stamp)
+
+    def _try(self, stamp: int) -> None:
+        f = self.pending.get(stamp)
+        if f is None or f.image is None or f.camera is None:
+            return
+        if f.pose is None:
+            if not self.poses_seen and stamp not in self._poseless:
+                self._poseless.add(stamp)
+                if len(self._poseless) == 3:
+                    self.get_logger().warning(
+                        'keyframes arrive without keyframes/pose: frames without poses are not refined '
+                        '(SfM mode is not implemented yet)'
+                    )
+            return
+        del self.pending[stamp]
+        if (f.camera.height, f.camera.width) != f.image.shape[:2]:
+            self.bad(
+                'camera_info',
+                f'CameraInfo {f.camera.width}x{f.camera.height} does not match image '
+                f'{f.image.shape[1]}x{f.image.shape[0]} at {stamp} ns',
+            )
+            return
+        if stamp in self.keyframes:
+            self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
+            return
+        mine = shard_of(stamp, self.num_workers) == self.worker_index
+        with self._lock:
+            self.keyframes[stamp] = _Keyframe(stamp, MvsView(f.image, f.camera, f.pose), f.info, mine)
+            self._version += 1
+            self._last_arrival = time.monotonic()
+        self._wake.set()
+
+    # -- scheduling -----------------------------------------------------------------------------
+    def _range(self, kf: _Keyframe, others: list[_Keyframe]) -> tuple[float, float]:
+        if self.depth_range is not None:
+            return self.depth_range
+        s = self.scene_depth or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
+        if s is None:
+            c = kf.view.t_wc[:3, 3]
+            d = sorted(float(np.linalg.norm(o.view.t_wc[:3, 3] - c)) for o in others)[:2]
+            s = 12.5 * max(float(np.mean(d)), 0.1)
+            if 'range' not in self._warned:
+                self._warned.add('range')
+                self.get_logger().warning(
+                    f'optical axes do not converge: scene depth guessed as {s:.1f} m from the keyframe '
+                    'spacing; set scene_depth_m or depth_range'
+                )
+        return s * self.near_ratio, s * self.far_ratio
+
+    def _next_job(self) -> tuple[_Keyframe, list[_Keyframe], tuple[float, float]] | None:
+        """The oldest keyframe of this worker that is due for (re)refinement, with its neighbours."""
+        kfs = sorted(self.keyframes.values(), key=lambda k: k.stamp)
+        if len(kfs) < 2:
+            return None
+        poses = np.stack([k.view.t_wc for k in kfs])
+        cams = [k.view.camera for k in kfs]
+        flush = self.flush_after_s > 0 and time.monotonic() - self._last_arrival >= self.flush_after_s
+        for i, kf in enumerate(kfs):
+            if not kf.mine or (kf.used and not self.refine_again):
+                continue
+            others = kfs[:i] + kfs[i + 1 :]
+            rng = self._range(kf, others)
+            nbrs = select_neighbours(i, poses, cams, depth_range=rng, **self._nb_kw)
+            n = len(nbrs)
+            if kf.used:
+                due = n > len(kf.used)
+            else:
+                due = (n >= self.min_neighbours or (flush and n >= 1)) and n > kf.failed_with
+            if due:
+                return kf, [kfs[j] for j in nbrs], rng
+            if flush and n == 0 and 'alone' not in kf.reported:
+                kf.reported.add('alone')
+                self.get_logger().warning(
+                    f'keyframe {kf.stamp} ns has no neighbour with enough overlap and parallax: '
+                    'not refined yet'
+                )
+        return None
+
+    def _work(self) -> None:
+        seen = -1
+        while not self._stop.is_set():
+            self._wake.wait(timeout=0.25)
+            self._wake.clear()
+            with self._lock:
+                flush_due = (
+                    self.flush_after_s > 0 and time.monotonic() - self._last_arrival >= self.flush_after_s
+                )
+                if self._version == seen and not flush_due:
+                    continue
+                version = self._version
+                try:
+                    job = self._next_job()
+                except BAD_MESSAGE as exc:  # a degenerate keyframe set (e.g. coincident cameras)
+                    self.bad('neighbours', str(exc))
+                    job = None
+                if job is None:
+                    seen = version
+                    if flush_due:  # nothing left to do until new keyframes arrive
+                        self._last_arrival = math.inf
+                    continue
+            try:
+                self._refine(*job)
+            except Exception as exc:  # the worker survives any one keyframe
+                if self._stop.is_set():
+                    return
+                self.get_logger().error(f'refining keyframe {job[0].stamp} ns failed: {exc!r}')
+                job[0].failed_with = len(job[1])
+            self._wake.set()  # look for the next job straight away
+
+    # -- refinement -----------------------------------------------------------------------------
+    def _refine(self, kf: _Keyframe, nbrs: list[_Keyframe], rng: tuple[float, float]) -> None:
+        t0 = time.perf_counter()
+        mvs = compute_depth_maps([kf.view, *(n.view for n in nbrs)], options=self.mvs, depth_range=rng)[0]
+        t1 = time.perf_counter()
+        try:
+            r = self.refiner.refine_from_mvs(kf.view, mvs.depth)
+        except RefineError as exc:
+            kf.failed_with = len(nbrs)
+            self.bad(
+                'refine', f'keyframe {kf.stamp} ns ({len(nbrs)} neighbours, MVS {mvs.reason or "ok"}): {exc}'
+            )
+            return
+        t2 = time.perf_counter()
+        if self._stop.is_set():
+            return
+        header = msg_utils.make_header(kf.stamp, kf.info.header.frame_id or 'camera_optical')
+        depth = np.where(r.depth > 0, r.depth, np.float32(np.nan)).astype(np.float32)
+        self.pub_depth.publish(msg_utils.numpy_to_image(depth, '32FC1', header))
+        info = msg_utils.pinhole_to_camera_info(kf.view.camera, header)
+        self.pub_info.publish(info)
+        if self.debug:
+            nan0 = lambda d: np.where(d > 0, d, np.float32(np.nan)).astype(np.float32)  # noqa: E731
+            out = {
+                'depth/mvs': msg_utils.numpy_to_image(nan0(r.mvs), '32FC1', header),
+                'depth/mono_remapped': msg_utils.numpy_to_image(nan0(r.mono_remapped), '32FC1', header),
+                'depth/sky_mask': msg_utils.numpy_to_image(r.sky.astype(np.uint8) * 255, 'mono8', header),
+                'depth/preview': msg_utils.numpy_to_image(colourise(r.depth), 'rgb8', header),
+                'depth/mvs/preview': msg_utils.numpy_to_image(colourise(r.mvs), 'rgb8', header),
+            }
+            for name, msg in out.items():
+                self.debug[name].publish(msg)
+        again = ' again' if kf.used else ''
+        kf.used = tuple(n.stamp for n in nbrs)
+        self.refine_times.append(t2 - t0)
+        flags = f', flags {",".join(r.flags)}' if r.flags else ''
+        self.get_logger().info(
+            f'refined{again} keyframe {kf.stamp} ns with {len(nbrs)} neighbours in {t2 - t0:.2f} s '
+            f'(MVS {t1 - t0:.2f} s, refine {t2 - t1:.2f} s; MVS completeness {r.mvs_completeness:.2f}, '
+            f'range {rng[0]:.1f}-{rng[1]:.1f} m{flags})'
+        )
+
+    def destroy_node(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        self._worker.join(timeout=2.0)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(DepthRefinerNode, args if args is not None else sys.argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,273 @@
+"""``view_renderer``: answers novel-view queries from the keyframe model.
+
+Subscribes (reliable, transient local, so a renderer started late or restarted receives the whole
+model already published): ``keyframes/image`` (``sensor_msgs/Image``), ``keyframes/camera_info``,
+``keyframes/pose`` (``geometry_msgs/PoseStamped``) and ``keyframes/depth`` (``32FC1`` metres or
+``16UC1`` mm), matched by stamp. A keyframe joins the model once all four arrived; a newer depth for
+it (a refiner's ``refine_again``) replaces the old one. Superpixels and warp data of a new view are
+computed when it arrives (:meth:`~ibr_ros.core.render.NovelViewRenderer.prepare`), not on a query.
+
+Queries: ``novel_view/query`` (``geometry_msgs/PoseStamped``, reliable): camera-to-world pose of
+the desired optical frame in the model's frame (``map``; an empty frame_id is taken as it).
+Replies (reliable): ``novel_view/image`` (``rgb8``, black where nothing was rendered) and
+``novel_view/camera_info``, both with the query's header stamp so that clients can match them.
+Output intrinsics: ``width`` x ``height`` with ``hfov_deg``; each 0 takes the latest keyframe's
+(all three 0: the keyframe camera itself, distortion dropped). They may be changed at run time
+(``ros2 param set``, ``ibr query --width/--height/--hfov``).
+
+A query is answered only when at least ``min_valid_fraction`` of the pixels were rendered.
+Unanswerable queries (no model yet, invalid pose, another frame, farther than the renderer's
+distance limit, facing away from every view, too incomplete) get no reply: each is counted per
+reason and logged (throttled per reason), so a client times out.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+
+import msg_utils
+from ibr_ros.core.camera import CameraError, PinholeCamera
+from ibr_ros.core.geometry import GeometryError, look_at
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
+from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node
+
+BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
+INTRINSICS = ('width', 'height', 'hfov_deg')
+
+
+@dataclass
+class _Keyframe:
+    rgb: np.ndarray | None = None
+    camera: PinholeCamera | None = None
+    pose: np.ndarray | None = None
+    frame: str = ''
+    depth: np.ndarray | None = None
+    index: int = -1  # in the renderer, once added
+
+
+class ViewRenderer(Node):
+    """Novel-view rendering node (see module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__('view_renderer')
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        dyn = {'read_only': False}
+        self.width = int(p('width', 0, 'output width (px), 0 = keyframe width', limits=(0, 16384), **dyn))
+        self.height = int(p('height', 0, 'output height (px), 0 = keyframe height', limits=(0, 16384), **dyn))
+        self.hfov = float(
+            p('hfov_deg', 0.0, 'output horizontal FOV (deg), 0 = keyframe FOV', limits=(0.0, 179.0), **dyn)
+        )
+        self.min_valid = float(
+            p('min_valid_fraction', 0.5, 'answer only when this fraction was rendered', limits=(0.0, 1.0))
+        )
+        self.frame_id = str(p('frame_id', 'novel_view_optical', 'frame_id of the replies'))
+        self.max_keyframes = int(p('max_keyframes', 1000, 'keyframes kept in the model', limits=(1, 100000)))
+        self.config = RenderConfig(
+            renderer=str(p('renderer', 'ibr', "'ibr' (paper), 'splat' or 'ulr' (baselines)")),
+            blend=str(p('blend', 'paper', "'paper' (best angle wins) or 'soft' (Gaussian blend)")),
+            n_views=int(p('n_views', 4, 'source views per query', limits=(1, 4))),
+            n_segments=int(p('n_segments', 1500, 'SLIC superpixels per source view', limits=(16, 100000))),
+            max_axis_angle_deg=float(
+                p('max_axis_angle_deg', 90.0, 'ignore views facing farther away (deg)', limits=(1.0, 180.0))
+            ),
+            far_factor=float(
+                p('far_factor', 3.0, 'distance limit = this x median scene depth', limits=(0.01, 1e6))
+            ),
+            max_cached_views=int(p('max_cached_views', 64, 'per-view caches kept (LRU)', limits=(1, 100000))),
+        )
+        self.renderer = NovelViewRenderer([], self.config)
+        self.bad = BadInput(self)
+        self.unanswered = BadInput(self)
+        self.keyframes: dict[int, _Keyframe] = {}
+        self.model_frame = ''
+        self.latest_camera: PinholeCamera | None = None
+        self.answered = 0
+        self.latencies: list[float] = []
+        qos = model_qos()
+        self.create_subscription(Image, 'keyframes/image', self.on_image, qos)
+        self.create_subscription(CameraInfo, 'keyframes/camera_info', self.on_info, qos)
+        self.create_subscription(PoseStamped, 'keyframes/pose', self.on_pose, qos)
+        self.create_subscription(Image, 'keyframes/depth', self.on_depth, qos)
+        self.create_subscription(PoseStamped, 'novel_view/query', self.on_query, reliable_qos())
+        self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
+        self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
+        self.add_on_set_parameters_callback(self._on_params)
+        if bool(p('warmup', True, 'render a tiny scene at start-up (JIT-compiled kernels load once)')):
+            self._warmup()
+
+    def _on_params(self, params: list[Parameter]) -> SetParametersResult:
+        new = {'width': self.width, 'height': self.height, 'hfov_deg': self.hfov}
+        for prm in params:
+            if prm.name in INTRINSICS:
+                new[prm.name] = prm.value
+        if not (new['width'] >= 0 and new['height'] >= 0 and 0 <= new['hfov_deg'] < 180):
+            return SetParametersResult(
+                successful=False, reason='need width, height >= 0, 0 <= hfov_deg < 180'
+            )
+        self.width, self.height, self.hfov = int(new['width']), int(new['height']), float(new['hfov_deg'])
+        return SetParametersResult(successful=True)
+
+    def _warmup(self) -> None:
+        t0 = time.perf_counter()
+        cam = PinholeCamera.from_fov(64, 48, 60.0)
+        rng = np.random.default_rng(0)
+        rgb = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+        t_wc = look_at([0.0, -10.0, 5.0], [0.0, 0.0, 0.0])
+        view = SourceView(rgb, np.full((48, 64), 11.0, np.float32), cam, t_wc)
+        NovelViewRenderer([view], RenderConfig(n_segments=30)).render(t_wc, cam)
+        self.get_logger().info(f'warm-up render in {time.perf_counter() - t0:.2f} s')
+
+    # -- model ----------------------------------------------------------------------------------
+    def _slot(self, stamp: int) -> _Keyframe:
+        if stamp not in self.keyframes and len(self.keyframes) >= self.max_keyframes:
+            waiting = [s for s, k in self.keyframes.items() if k.index < 0]
+            if not waiting:
+                raise OverflowError(f'model full ({self.max_keyframes} keyframes)')
+            del self.keyframes[min(waiting)]
+            self.bad('incomplete', f'keyframe at {min(waiting)} ns dropped before all its messages arrived')
+        return self.keyframes.setdefault(stamp, _Keyframe())
+
+    def _store(self, stamp: int, **fields: object) -> None:
+        try:
+            kf = self._slot(stamp)
+        except OverflowError as exc:
+            self.bad('model_full', str(exc))
+            return
+        if kf.index >= 0 and 'depth' not in fields:
+            return  # image, camera_info and pose of a keyframe are fixed once it is in the model
+        for k, v in fields.items():
+            setattr(kf, k, v)
+        self._update(stamp, kf)
+
+    def on_image(self, msg: Image) -> None:
+        try:
+            rgb = np.array(msg_utils.image_to_rgb(msg))
+        except BAD_MESSAGE as exc:
+            self.bad('image', str(exc))
+            return
+        self._store(msg_utils.stamp_to_ns(msg.header.stamp), rgb=rgb)
+
+    def on_info(self, msg: CameraInfo) -> None:
+        try:
+            cam = msg_utils.camera_info_to_pinhole(msg)
+        except BAD_MESSAGE as exc:
+            self.bad('camera_info', str(exc))
+            return
+        self._store(msg_utils.stamp_to_ns(msg.header.stamp), camera=cam)
+
+    def on_pose(self, msg: PoseStamped) -> None:
+        try:
+            t_wc = msg_utils.pose_stamped_to_matrix(msg)
+        except BAD_MESSAGE as exc:
+            self.bad('pose', str(exc))
+            return
+        self._store(msg_utils.stamp_to_ns(msg.header.stamp), pose=t_wc, frame=msg.header.frame_id or 'map')
+
+    def on_depth(self, msg: Image) -> None:
+        try:
+            depth = np.array(msg_utils.depth_image_to_m(msg))
+        except BAD_MESSAGE as exc:
+            self.bad('depth', str(exc))
+            return
+        self._store(msg_utils.stamp_to_ns(msg.header.stamp), depth=depth)
+
+    def _update(self, stamp: int, kf: _Keyframe) -> None:
+        if kf.rgb is None or kf.camera is None or kf.pose is None or kf.depth is None:
+            return
+        cam = kf.camera
+        if kf.rgb.shape[:2] != (cam.height, cam.width) or kf.depth.shape != (cam.height, cam.width):
+            self.bad(
+                'size',
+                f'keyframe {stamp} ns: image {kf.rgb.shape[1]}x{kf.rgb.shape[0]}, depth '
+                f'{kf.depth.shape[1]}x{kf.depth.shape[0]}, camera_info {cam.width}x{cam.height}',
+            )
+            kf.depth = None
+            return
+        if self.model_frame and kf.frame != self.model_frame:
+            self.bad('frame', f'keyframe {stamp} ns is in {kf.frame!r}, the model in {self.model_frame!r}')
+            kf.depth = None
+            return
+        self.model_frame = kf.frame
+        t0 = time.perf_counter()
+        view = SourceView(kf.rgb, kf.depth, cam, kf.pose, name=str(stamp), stamp=stamp * 1e-9)
+        replaced = kf.index >= 0
+        if replaced:
+            self.renderer.replace_view(kf.index, view)
+        else:
+            kf.index = self.renderer.add_view(view)
+            self.latest_camera = cam
+        self.renderer.prepare([kf.index])
+        usable = self.renderer.skip_reason(kf.index)
+        self.get_logger().info(
+            f'{"updated" if replaced else "added"} keyframe {stamp} ns '
+            f'({len(self.renderer.views)} in the model{"; unusable: " + usable if usable else ""}; '
+            f'prepared in {time.perf_counter() - t0:.2f} s)'
+        )
+
+    # -- queries --------------------------------------------------------------------------------
+    def _out_camera(self) -> PinholeCamera:
+        kf = self.latest_camera
+        if not (self.width or self.height or self.hfov):
+            return PinholeCamera(kf.width, kf.height, kf.k)
+        return PinholeCamera.from_fov(
+            self.width or kf.width, self.height or kf.height, self.hfov or kf.hfov_deg
+        )
+
+    def on_query(self, msg: PoseStamped) -> None:
+        t0 = time.perf_counter()
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        if self.latest_camera is None:
+            self.unanswered('no_model', f'query {stamp} ns: no keyframe with depth received yet')
+            return
+        frame = msg.header.frame_id or self.model_frame
+        if frame != self.model_frame:
+            self.unanswered('frame', f'query {stamp} ns is in {frame!r}, the model in {self.model_frame!r}')
+            return
+        try:
+            t_wc = msg_utils.pose_stamped_to_matrix(msg)
+            camera = self._out_camera()
+        except BAD_MESSAGE as exc:
+            self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
+            return
+        try:
+            out = self.renderer.render(t_wc, camera)
+        except Exception as exc:  # a renderer bug must not take the model down with it
+            self.unanswered('render_error', f'query {stamp} ns: {exc!r}')
+            return
+        if out.reason is not None:
+            self.unanswered('unrenderable', f'query {stamp} ns: {out.reason}')
+            return
+        frac = float(out.valid.mean())
+        if frac < self.min_valid:
+            self.unanswered(
+                'incomplete',
+                f'query {stamp} ns: only {frac:.0%} rendered (< min_valid_fraction {self.min_valid})',
+            )
+            return
+        header = msg_utils.make_header(stamp, self.frame_id)
+        self.pub_image.publish(msg_utils.numpy_to_image(out.rgb, 'rgb8', header))
+        self.pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
+        self.answered += 1
+        dt = time.perf_counter() - t0
+        self.latencies.append(dt)
+        self.get_logger().info(
+            f'query {stamp} ns answered in {1e3 * dt:.0f} ms ({frac:.0%} rendered from views '
+            f'{[self.renderer.views[i].name for i in out.used_views]})'
+        )
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(ViewRenderer, args if args is not None else sys.argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
