@@ -42,13 +42,7 @@ from ibr_ros.nodes.depth_refiner import axis_scene_depth, shard_of
 KEYFRAMES = tuple(range(0, 192, 24))  # 8 frames, all multiples of 3 (stored GT depth)
 HELD_OUT = 84
 AUC_BAR = 12.0
-# `ibr query` whether or not ibr_ros.cli.main lists the subcommand yet.
-IBR_QUERY = [
-    sys.executable, '-c',
-    'import argparse, sys; from ibr_ros.cli import query; p = argparse.ArgumentParser(); '
-    'query.register(p.add_subparsers()); a = p.parse_args(sys.argv[1:]); sys.exit(a.func(a))',
-    'query',
-]  # fmt: skip
+IBR_QUERY = [sys.executable, '-m', 'ibr_ros.cli.main', 'query']
 
 
 class Proc:
