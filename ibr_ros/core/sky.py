@@ -18,7 +18,15 @@ from numpy.typing import NDArray
 from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.mono import IMAGENET_MEAN, IMAGENET_STD, MonoModelError
 
-__all__ = ['OnnxSkySegmenter', 'SkySpec', 'apply_sky_depth', 'erode_sky', 'horizon_mask', 'sky_fallback']
+__all__ = [
+    'SKY_PRESETS',
+    'OnnxSkySegmenter',
+    'SkySpec',
+    'apply_sky_depth',
+    'erode_sky',
+    'horizon_mask',
+    'sky_fallback',
+]
 
 
 @dataclass(frozen=True)
@@ -40,6 +48,13 @@ class SkySpec:
     sky_class: int = 0
     output_index: int = 0
     threads: int = 1
+
+
+#: Conventions of known sky models (give ``path`` with :func:`dataclasses.replace`).
+SKY_PRESETS: dict[str, SkySpec] = {
+    # The model shipped with ibr_ros: its second output is a one-channel sky logit (trained at 256x160).
+    'ibr_mono': SkySpec(input_size=(256, 160), output='sky_logit', output_index=1),
+}
 
 
 class OnnxSkySegmenter:
@@ -122,7 +137,7 @@ def sky_fallback(
     near_depth = cv2.dilate(known, np.ones((3, 3), np.uint8)) > 0
     cand = above & ~near_depth & (grad < max_gradient) & (gray >= min_brightness)
     if cand.any():  # the sky is the brightest smooth region: drop darker (hazy hill) candidates
-        value = rgb.max(axis=2)  # HSV value: blue sky is bright in it, unlike in luminance
+        value = cv2.max(cv2.max(rgb[..., 0], rgb[..., 1]), rgb[..., 2])  # HSV value: blue sky is bright
         ref = float(np.percentile(value[cand], 95))
         if ref < float(np.percentile(value, 90)):
             return np.zeros_like(cand)  # nothing above the horizon is among the image's brightest
@@ -136,7 +151,9 @@ def sky_fallback(
     seeds = set(labels[0][labels[0] > 0].tolist())
     has_sky_col = above.any(axis=0)
     seeds |= set(labels[top_of_sky[has_sky_col], cols[has_sky_col]].tolist()) - {0}
-    return np.isin(labels, list(seeds))
+    keep = np.zeros(n, bool)
+    keep[list(seeds)] = True
+    return keep[labels]
 
 
 def erode_sky(mask: NDArray[np.bool_], *, diag_fraction: float = 0.03) -> NDArray[np.bool_]:
