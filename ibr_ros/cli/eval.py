@@ -17,6 +17,27 @@ def _depth(args: argparse.Namespace) -> int:
     return 0 if summary['evaluated'] else 1
 
 
+def _mono(args: argparse.Namespace) -> int:
+    from ibr_ros.cli.progress import progress_bar
+    from ibr_ros.errors import UserError
+    from ibr_ros.jobs.eval_mono import MonoEvalOptions, evaluate_mono
+    from ibr_ros.models import SHIPPED_MONO_MODEL
+
+    try:
+        w, h = (int(v) for v in args.size.lower().split('x'))
+    except ValueError as exc:
+        raise UserError(f'--size must be WIDTHxHEIGHT, got {args.size!r}') from exc
+    bag = Path(args.photos_bag) if args.photos_bag else None
+    options = MonoEvalOptions(
+        scenes=args.scenes, views=args.views, size=(w, h), ref_fraction=args.ref_fraction,
+        seed=args.seed, png=args.png, photos_bag=bag,
+    )  # fmt: skip
+    with progress_bar('mono eval', unit='view', enabled=args.progress) as progress:
+        evaluate_mono(Path(args.model or SHIPPED_MONO_MODEL), Path(args.out), options, progress)
+    print((Path(args.out) / 'mono_eval.md').read_text())
+    return 0
+
+
 def _rephoto(args: argparse.Namespace) -> int:
     from ibr_ros.cli.progress import progress_bar
     from ibr_ros.jobs.eval_rephoto import RephotoEvalOptions, evaluate_rephoto, parse_holdout
@@ -49,6 +70,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     d.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bar')
     d.set_defaults(func=_depth)
+    m = ev.add_parser('mono', help='monocular depth + sky model on held-out synthetic views and real photos')
+    m.add_argument('--model', help='ONNX model in the ibr_mono convention (default: the shipped one)')
+    m.add_argument('--out', default='out/mono_eval', help='output folder (default: out/mono_eval)')
+    m.add_argument('--scenes', type=int, default=8, help='held-out towns')
+    m.add_argument('--views', type=int, default=4, help='views per town')
+    m.add_argument('--size', default='384x224', help='rendered view size WIDTHxHEIGHT')
+    m.add_argument('--ref-fraction', type=float, default=0.05, help='share of GT pixels used as reference')
+    m.add_argument('--seed', type=int, default=0, help='held-out seed block')
+    m.add_argument(
+        '--photos-bag', default='bags/brighton_beach', help='bag of real photos for PNGs ("" = none)'
+    )
+    m.add_argument('--png', action=argparse.BooleanOptionalAction, default=True, help='write PNGs')
+    m.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bar')
+    m.set_defaults(func=_mono)
 
     r = ev.add_parser(
         'rephoto', help='leave-one-out rephotography of held-out views on a synthetic bag (Table 3, Fig. 11)'

@@ -103,8 +103,9 @@ PRESETS: dict[str, MonoModelSpec] = {
     ),
     # MegaDepth (hourglass): 512x384 input in [0, 1], output log depth.
     'megadepth': MonoModelSpec(input_size=(512, 384), output='log_depth'),
-    # The model shipped with ibr_ros (see ibr_ros/models/README.md).
-    'ibr_mono': MonoModelSpec(max_side=384, multiple_of=32, mean=IMAGENET_MEAN, std=IMAGENET_STD),
+    # The model shipped with ibr_ros (see ibr_ros/models/README.md): trained at 256x160, any size
+    # with sides multiple of 32 works; its training scale (long side 256) gives the best results.
+    'ibr_mono': MonoModelSpec(max_side=256, multiple_of=32, mean=IMAGENET_MEAN, std=IMAGENET_STD),
 }
 
 
