@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from numpy.typing import NDArray
 
 __all__ = ['median_filter_valid', 'prune_depth', 'weighted_median_filter_valid']
@@ -237,7 +237,7 @@ def _padded_inputs(v, rgb, r, sp):
     return vp, colp
 
 
-@njit(cache=True, fastmath=True, error_model='numpy')
+@njit(cache=True, fastmath=True, error_model='numpy', parallel=True)
 def _weighted_keep_at(vp, colp, row_min, row_max, ys, xs, lo_t, hi_t, r, colmask, k):
     """Colour-weighted median test for the listed centres: ``2 W(q < lo) < W and 2 W(q > hi) <= W``.
 
@@ -251,9 +251,9 @@ def _weighted_keep_at(vp, colp, row_min, row_max, ys, xs, lo_t, hi_t, r, colmask
     """
     sp = colmask.shape[0]
     n = 2 * r + 1
-    outside = np.empty(n, np.bool_)
     keep = np.zeros(ys.shape[0], np.bool_)
-    for i in range(ys.shape[0]):
+    for i in prange(ys.shape[0]):  # centres are independent: spread over the cores
+        outside = np.empty(n, np.bool_)
         y = ys[i]
         x = xs[i]
         cr = colp[0, y + r, x + r]
