@@ -1,35 +1,27 @@
-"""``ibr demo``: the main job on the embedded default bags.
-
-Until the node graph lands this prints ``ibr bag info`` for every bag under ``bags/``.
-"""
+"""``ibr demo``: the main job on the embedded default bag (see :mod:`ibr_ros.jobs.demo`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from ibr_ros.errors import UserError
-
-
-def default_bags_dir() -> Path:
-    """The repository's ``bags/`` folder (the demo runs from a source checkout)."""
-    return Path.cwd() / 'bags'
-
 
 def run(args: argparse.Namespace) -> int:
-    from ibr_ros.bag.info import bag_info, format_bag_info
-    from ibr_ros.bag.reader import find_bags
+    from ibr_ros.jobs.demo import run_demo
 
-    bags = find_bags(Path(args.bags))
-    if not bags:
-        raise UserError(f'no bags found under {args.bags}')
-    for path in bags:
-        print(format_bag_info(bag_info(path)))
-        print()
-    return 0
+    summary = run_demo(Path(args.bag), Path(args.out), n_queries=args.queries, rate=args.rate,
+                       timeout_s=args.timeout)  # fmt: skip
+    print((Path(args.out) / 'summary.md').read_text())
+    return 0 if summary['answered'] and summary['refined'] == summary['keyframes'] else 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser('demo', help='run the main job on the default bags')
-    p.add_argument('--bags', default=str(default_bags_dir()), help='folder of bags (default: ./bags)')
+    p = sub.add_parser('demo', help='run the node graph on the default synthetic bag and query novel views')
+    p.add_argument(
+        '--bag', default='bags/synth_orbit_s0', help='synthetic bag (default: bags/synth_orbit_s0)'
+    )
+    p.add_argument('--out', default='out', help='output folder (default: out)')
+    p.add_argument('--queries', type=int, default=8, help='novel views along the path between keyframes')
+    p.add_argument('--rate', type=float, default=0.0, help='replay rate (0 = as fast as possible)')
+    p.add_argument('--timeout', type=float, default=900.0, help='give up after this many seconds')
     p.set_defaults(func=run)
