@@ -25,7 +25,7 @@ from ibr_ros.core.geometry import matrix_from_rt, quaternion_from_rotation, rota
 from ibr_ros.core.rephoto import score
 from ibr_ros.errors import UserError
 from ibr_ros.graph import Graph, NodeSpec
-from ibr_ros.jobs.eval_depth import _colour_depth, write_atomic
+from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 
 __all__ = ['interpolate_path', 'run_demo']
@@ -173,7 +173,7 @@ def run_demo(
         )
         fin = truth.depth[np.isfinite(truth.depth)]
         lo, hi = float(fin.min()), float(fin.max())
-        tiles = [img, _colour_depth(d, lo, hi)[..., ::-1], _colour_depth(truth.depth, lo, hi)[..., ::-1]]
+        tiles = [img, colour_depth(d, lo, hi)[..., ::-1], colour_depth(truth.depth, lo, hi)[..., ::-1]]
         _png(out / 'depth' / f'keyframe_{i:02d}.png', np.hstack(tiles))
     answered = [r for r in results if r['answered']]
     summary = {

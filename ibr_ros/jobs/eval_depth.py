@@ -142,7 +142,7 @@ def sparse_points(gts: list, views: list[MvsView], seed: int, per_view: int = 50
     return np.concatenate(pts)
 
 
-def _colour_depth(d: NDArray, vmin: float, vmax: float) -> NDArray[np.uint8]:
+def colour_depth(d: NDArray, vmin: float, vmax: float) -> NDArray[np.uint8]:
     """Inverse-depth colouring (turbo), black where unknown."""
     ok = np.isfinite(d) & (d > 0)
     inv = np.zeros(d.shape, np.float64)
@@ -158,7 +158,7 @@ def _grid_png(path: Path, rgb: NDArray, maps: dict[str, NDArray], g: NDArray) ->
     vmin, vmax = np.percentile(vals, [1, 99]) if vals.size else (1.0, 2.0)
     tiles = [cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)]
     tiles.append(cv2.applyColorMap((g >> 8).astype(np.uint8), cv2.COLORMAP_TURBO))
-    tiles += [_colour_depth(m, max(vmin, 1e-3), max(vmax, vmin * 1.01)) for m in maps.values()]
+    tiles += [colour_depth(m, max(vmin, 1e-3), max(vmax, vmin * 1.01)) for m in maps.values()]
     names = ['input', 'mono G', *maps]
     for t, name in zip(tiles, names, strict=True):
         cv2.putText(t, name, (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
