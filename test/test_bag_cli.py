@@ -133,11 +133,3 @@ def test_subprocess_error_has_no_traceback(bags: dict[str, Path]) -> None:
         f'ibr bag info: error: {bags["truncated"]}: '
         'truncated MCAP file (no footer); the recording may have been interrupted'
     )
-
-
-def test_demo_lists_bags(bags: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    import shutil
-
-    shutil.copytree(bags['good'], tmp_path / 'good')
-    assert main(['demo', '--bags', str(tmp_path)]) == 0
-    assert '/cam/image_raw' in capsys.readouterr().out

@@ -22,6 +22,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument('--out', default='out', help='output folder (default: out)')
     p.add_argument('--queries', type=int, default=8, help='novel views along the path between keyframes')
-    p.add_argument('--rate', type=float, default=0.0, help='replay rate (0 = as fast as possible)')
+    p.add_argument('--rate', type=float, default=1.0, help='replay rate (1 = real time, 0 = fastest)')
     p.add_argument('--timeout', type=float, default=900.0, help='give up after this many seconds')
     p.set_defaults(func=run)

@@ -52,9 +52,14 @@ def _png(path: Path, rgb: np.ndarray) -> None:
 
 
 def run_demo(
-    bag: Path, out: Path, *, n_queries: int = 8, rate: float = 0.0, timeout_s: float = 900.0
+    bag: Path, out: Path, *, n_queries: int = 8, rate: float = 1.0, timeout_s: float = 900.0
 ) -> dict:
-    """Run the demo (see module docstring); returns the summary."""
+    """Run the demo (see module docstring); returns the summary.
+
+    ``rate`` 1 replays in real time: the subsampler's camera subscriptions are best effort (sensor
+    data QoS), so replaying faster than it decodes frames would drop frames and make the keyframe
+    set depend on the machine's load.
+    """
     import rclpy
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
