@@ -75,7 +75,7 @@ def run_demo(
             'bag_player',
             {'bag': str(bag.resolve()), 'rate': rate, 'topics': topics, 'wait_for_subscribers': 1},
         ),
-        NodeSpec('frame_subsampler', {'compressed': True, 'scene_depth_m': 60.0}),
+        NodeSpec('frame_subsampler', {'compressed': True, 'scene_depth_m': 80.0}),
         NodeSpec('depth_refiner', {'max_neighbours': 2, 'flush_after_s': 3.0}),
         NodeSpec('view_renderer', {}),
     ]
