@@ -37,3 +37,21 @@ def ros_env() -> dict[str, str]:
 @pytest.fixture(scope='session')
 def python() -> str:
     return sys.executable
+
+
+@pytest.fixture(scope='session')
+def synth_bags(tmp_path_factory) -> dict[str, Path]:
+    """The shipped synthetic flight and two small generated ones (seed 1 lawnmower, seed 2 forward).
+
+    Generated once per test run and shared by the depth and rephotography evaluations.
+    """
+    from ibr_ros.cli.main import main
+
+    root = tmp_path_factory.mktemp('synth_bags')
+    bags = {'shipped': REPO / 'bags' / 'synth_orbit_s0'}
+    for seed, kind in ((1, 'lawnmower'), (2, 'forward')):
+        out = root / f'seed{seed}'
+        args = ['bag', 'synth', '--seed', str(seed), '--trajectory', kind, '--duration', '6', '--fps', '2']
+        assert main([*args, '--size', '480x270', '--depth-every', '100', '--out', str(out)]) == 0
+        bags[f'seed{seed}'] = out
+    return bags

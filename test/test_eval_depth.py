@@ -16,15 +16,8 @@ from ibr_ros.jobs.eval_depth import DepthEvalOptions, evaluate_depth
 
 
 @pytest.fixture(scope='module')
-def scenes(repo, tmp_path_factory):
-    root = tmp_path_factory.mktemp('eval_depth')
-    bags = {'shipped': repo / 'bags' / 'synth_orbit_s0'}
-    for seed, kind in ((1, 'lawnmower'), (2, 'forward')):
-        out = root / f'seed{seed}'
-        args = ['bag', 'synth', '--seed', str(seed), '--trajectory', kind, '--duration', '6', '--fps', '2']
-        assert main([*args, '--size', '480x270', '--depth-every', '100', '--out', str(out)]) == 0
-        bags[f'seed{seed}'] = out
-    return root, bags
+def scenes(synth_bags, tmp_path_factory):
+    return tmp_path_factory.mktemp('eval_depth'), synth_bags
 
 
 @pytest.mark.parametrize('name', ['shipped', 'seed1', 'seed2'])

@@ -48,15 +48,8 @@ SETTINGS = {'shipped': (10, 7, 3), 'seed1': (1, 10, 3), 'seed2': (1, 10, 3)}
 
 
 @pytest.fixture(scope='module')
-def scenes(repo, tmp_path_factory):
-    root = tmp_path_factory.mktemp('eval_rephoto')
-    bags = {'shipped': repo / 'bags' / 'synth_orbit_s0'}
-    for seed, kind in ((1, 'lawnmower'), (2, 'forward')):
-        out = root / f'seed{seed}'
-        args = ['bag', 'synth', '--seed', str(seed), '--trajectory', kind, '--duration', '6', '--fps', '2']
-        assert main([*args, '--size', '480x270', '--depth-every', '100', '--out', str(out)]) == 0
-        bags[f'seed{seed}'] = out
-    return root, bags
+def scenes(synth_bags, tmp_path_factory):
+    return tmp_path_factory.mktemp('eval_rephoto'), synth_bags
 
 
 def test_holdout_parsing_and_positions() -> None:
