@@ -21,7 +21,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-__all__ = ['BadInput', 'declare', 'model_qos', 'reliable_qos', 'run_node', 'sensor_qos']
+__all__ = ['BadInput', 'declare', 'model_qos', 'reliable_qos', 'run_node', 'sensor_qos', 'size_mismatch']
 
 LOG = logging.getLogger(__name__)
 
@@ -105,3 +105,10 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def size_mismatch(width: int, height: int, image_shape: tuple[int, ...], stamp: int) -> str | None:
+    """Why a CameraInfo of ``width`` x ``height`` does not fit an image of ``image_shape``, or None."""
+    if (height, width) == tuple(image_shape[:2]):
+        return None
+    return f'CameraInfo {width}x{height} does not match image {image_shape[1]}x{image_shape[0]} at {stamp} ns'

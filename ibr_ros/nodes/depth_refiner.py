@@ -53,7 +53,7 @@ from ibr_ros.core.camera import CameraError, PinholeCamera
 from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps, select_neighbours
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
-from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node
+from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node, size_mismatch
 
 BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
@@ -246,12 +246,8 @@ class DepthRefinerNode(Node):
                     )
             return
         del self.pending[stamp]
-        if (f.camera.height, f.camera.width) != f.image.shape[:2]:
-            self.bad(
-                'camera_info',
-                f'CameraInfo {f.camera.width}x{f.camera.height} does not match image '
-                f'{f.image.shape[1]}x{f.image.shape[0]} at {stamp} ns',
-            )
+        if mismatch := size_mismatch(f.camera.width, f.camera.height, f.image.shape, stamp):
+            self.bad('camera_info', mismatch)
             return
         if stamp in self.keyframes:
             self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')

@@ -26,7 +26,7 @@ import msg_utils
 from ibr_ros.core.camera import CameraError, PinholeCamera
 from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.keyframes import KeyframeConfig, KeyframeSelector, blur_score
-from ibr_ros.nodes.common import BadInput, declare, model_qos, run_node, sensor_qos
+from ibr_ros.nodes.common import BadInput, declare, model_qos, run_node, sensor_qos, size_mismatch
 
 BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 
@@ -134,12 +134,8 @@ class FrameSubsampler(Node):
         for old in [s for s in self.pending if s < stamp]:  # older frames can no longer complete in order
             del self.pending[old]
             self.bad('incomplete', f'frame at {old} ns superseded before all its messages arrived')
-        if (f.camera.height, f.camera.width) != f.image.shape[:2]:
-            self.bad(
-                'camera_info',
-                f'CameraInfo {f.camera.width}x{f.camera.height} does not match image '
-                f'{f.image.shape[1]}x{f.image.shape[0]} at {stamp} ns',
-            )
+        if mismatch := size_mismatch(f.camera.width, f.camera.height, f.image.shape, stamp):
+            self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
         d = self.selector.decide(stamp, f.pose, blur_score(f.image), self.scene_depth or None)
