@@ -78,6 +78,17 @@ def test_runtime_sanity(depth_model: OnnxMonoDepth) -> None:
     assert time.perf_counter() - t0 < 1.0
 
 
+def test_flip_average_is_mirror_equivariant(depth_model: OnnxMonoDepth) -> None:
+    """With ``flip_average`` (on in the preset) a mirrored image gives the mirrored prediction."""
+    assert depth_model.spec.flip_average
+    rgb = np.random.default_rng(1).integers(0, 256, (160, 256, 3), dtype=np.uint8)
+    a = depth_model.predict_nearness(rgb)
+    b = depth_model.predict_nearness(np.ascontiguousarray(rgb[:, ::-1]))[:, ::-1]
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4 * float(np.abs(a).max()))
+    single = OnnxMonoDepth(replace(depth_model.spec, flip_average=False)).predict_nearness(rgb)
+    assert not np.allclose(single, a)
+
+
 def test_seed_ranges_do_not_overlap() -> None:
     assert EVAL_SEED_BASE > TRAIN_SEED_BASE + 10_000
 

@@ -125,6 +125,14 @@ def build_model() -> torch.nn.Module:
     return Net()
 
 
+def lr_factor(step: int, steps: int, cycle_steps: int | None = None, decay: float = 0.5) -> float:
+    """Learning-rate factor at ``step``: cosine cycles of ``cycle_steps`` (default: one cycle of
+    ``steps``), each starting with a 200-step warm-up and ``decay`` times the previous cycle's peak."""
+    c = cycle_steps or steps
+    k, s = divmod(min(step, steps - 1), c)
+    return decay**k * min(1.0, (s + 1) / 200) * 0.5 * (1 + math.cos(math.pi * s / c))
+
+
 def _normalise(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Per-image (x - median) / mean|x - median| over ``mask`` (MiDaS); x, mask Bx1xHxW."""
     import torch
@@ -248,10 +256,7 @@ def train(args: argparse.Namespace) -> None:
     model = build_model()
     LOG.info('parameters: %d', sum(p.numel() for p in model.parameters()))
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt,
-        lambda s: min(1.0, (s + 1) / 200) * 0.5 * (1 + math.cos(math.pi * min(s, args.steps) / args.steps)),
-    )
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, args.steps, args.cycle_steps))
     step = 0
     ckpt = wd / 'checkpoint.pt'
     if args.resume and ckpt.is_file():
@@ -261,7 +266,7 @@ def train(args: argparse.Namespace) -> None:
         sched.load_state_dict(state['sched'])
         step = state['step']
         LOG.info('resumed from %s at step %d', ckpt, step)
-    t0 = time.monotonic()
+    t0, first = time.monotonic(), step
     model.train()
     run = np.zeros(4)
     while step < args.steps:
@@ -286,7 +291,7 @@ def train(args: argparse.Namespace) -> None:
             run /= args.log_every
             LOG.info(
                 'step %d/%d loss %.4f (ssi %.4f grad %.4f bce %.4f) lr %.2e %.2f s/step',
-                step, args.steps, *run, sched.get_last_lr()[0], (time.monotonic() - t0) / step,
+                step, args.steps, *run, sched.get_last_lr()[0], (time.monotonic() - t0) / (step - first),
             )  # fmt: skip
             run[:] = 0
         if step % args.ckpt_every == 0 or step == args.steps:
@@ -305,6 +310,7 @@ def train(args: argparse.Namespace) -> None:
     export_onnx(model, Path(args.out), (args.width, args.height))
     meta = {
         'steps': args.steps,
+        'cycle_steps': args.cycle_steps,
         'batch': args.batch,
         'views': n,
         'size': [args.width, args.height],
@@ -322,7 +328,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--views', type=int, default=10, help='views per town')
     p.add_argument('--width', type=int, default=256, help='training image width (multiple of 32)')
     p.add_argument('--height', type=int, default=160, help='training image height (multiple of 32)')
-    p.add_argument('--steps', type=int, default=5500)
+    p.add_argument('--steps', type=int, default=11000)
+    p.add_argument(
+        '--cycle-steps', type=int, default=5500, help='cosine cycle length (warm restarts every cycle)'
+    )
     p.add_argument('--batch', type=int, default=8)
     p.add_argument('--lr', type=float, default=2e-3)
     p.add_argument('--seed', type=int, default=0)
