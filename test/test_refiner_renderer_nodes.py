@@ -35,9 +35,9 @@ from ibr_ros.bag import open_bag
 from ibr_ros.core.geometry import R_BODY_FROM_OPTICAL, matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.core.rephoto import score
+from ibr_ros.core.schedule import axis_scene_depth, shard_of
 from ibr_ros.jobs.synth_bag import TOPICS
 from ibr_ros.nodes.common import model_qos, reliable_qos
-from ibr_ros.nodes.depth_refiner import axis_scene_depth, shard_of
 
 KEYFRAMES = tuple(range(0, 192, 24))  # 8 frames, all multiples of 3 (stored GT depth)
 HELD_OUT = 84

@@ -7,7 +7,8 @@ identical header stamps.
 A keyframe is refined once :func:`~ibr_ros.core.mvs.select_neighbours` finds ``min_neighbours``
 source views for it among the keyframes received so far, or, with at least one neighbour, when
 ``flush_after_s`` passed without a new keyframe (the end of a flight). With ``refine_again`` it is
-refined again whenever more neighbours (up to ``max_neighbours``) become available. Refinement:
+refined again whenever more neighbours (up to ``max_neighbours``) become available. This policy is
+:class:`~ibr_ros.core.schedule.RefineScheduler`, shared with ``ibr process``. Refinement:
 :func:`~ibr_ros.core.mvs.compute_depth_maps` on the keyframe and its neighbours, then
 :meth:`~ibr_ros.core.refine.DepthRefiner.refine_from_mvs`.
 
@@ -27,7 +28,8 @@ turbo-coloured inverse depth).
 
 Sharding: with ``num_workers`` > 1 every process receives all keyframes (they are everybody's
 neighbours) but refines only those whose stamp hashes to its ``worker_index``
-(:func:`shard_of`, independent of arrival order), so each keyframe is refined exactly once.
+(:func:`~ibr_ros.core.schedule.shard_of`, independent of arrival order), so each keyframe is
+refined exactly once.
 
 The heavy work runs on one worker thread; the executor thread only stores messages. Frames
 without a pose are not refined: SfM mode (registering pose-less keyframes) is not implemented.
@@ -35,12 +37,11 @@ without a pose are not refined: SfM mode (registering pose-less keyframes) is no
 
 from __future__ import annotations
 
-import hashlib
 import math
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -51,35 +52,13 @@ from sensor_msgs.msg import CameraInfo, Image
 import msg_utils
 from ibr_ros.core.camera import CameraError, PinholeCamera
 from ibr_ros.core.geometry import GeometryError
-from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps, select_neighbours
+from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
 from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node, size_mismatch
 
 BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
-
-
-def shard_of(stamp_ns: int, num_workers: int) -> int:
-    """The worker (0 .. ``num_workers`` - 1) that refines the keyframe stamped ``stamp_ns``."""
-    digest = hashlib.blake2b(int(stamp_ns).to_bytes(8, 'little', signed=True), digest_size=8).digest()
-    return int.from_bytes(digest, 'little') % num_workers
-
-
-def axis_scene_depth(t_wc: np.ndarray, others: list[np.ndarray]) -> float | None:
-    """Median distance along the optical axis of ``t_wc`` to its closest approach to the other axes."""
-    c0, a0 = t_wc[:3, 3], t_wc[:3, 2]
-    dists = []
-    for t in others:
-        c1, a1 = t[:3, 3], t[:3, 2]
-        b = float(a0 @ a1)
-        if not math.cos(math.radians(90.0)) <= b <= math.cos(math.radians(3.0)):
-            continue
-        w = c0 - c1
-        d, e = float(a0 @ w), float(a1 @ w)
-        s, u = (b * e - d) / (1 - b * b), (e - b * d) / (1 - b * b)
-        if s > 0 and u > 0:
-            dists.append(s)
-    return float(np.median(dists)) if dists else None
 
 
 def colourise(depth: np.ndarray) -> np.ndarray:
@@ -103,17 +82,6 @@ class _Pending:
     info: CameraInfo | None = None
     camera: PinholeCamera | None = None
     pose: np.ndarray | None = None
-
-
-@dataclass
-class _Keyframe:
-    stamp: int
-    view: MvsView
-    info: CameraInfo
-    mine: bool
-    used: tuple[int, ...] = ()  # neighbour stamps of the last successful refinement
-    failed_with: int = -1  # neighbour count of the last failed attempt
-    reported: set[str] = field(default_factory=set)
 
 
 class DepthRefinerNode(Node):
@@ -144,29 +112,31 @@ class DepthRefinerNode(Node):
             p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
         )
         sky = str(p('sky', 'fallback', "sky mask: 'fallback' (horizon + colour cues) or 'none'"))
-        if self.worker_index >= self.num_workers:
-            raise ValueError(f'worker_index {self.worker_index} must be < num_workers {self.num_workers}')
-        if max_nb < self.min_neighbours:
-            raise ValueError(f'max_neighbours {max_nb} must be >= min_neighbours {self.min_neighbours}')
-        self.depth_range = (float(rng[0]), float(rng[1])) if len(rng) == 2 and 0 < rng[0] < rng[1] else None
-        if self.depth_range is None and any(rng):
-            raise ValueError(
-                f'depth_range must be [near, far] with 0 < near < far, or [0, 0]; got {list(rng)}'
-            )
         self.mvs = MvsOptions(max_neighbours=max_nb)
-        names = ('max_neighbours', 'min_angle_deg', 'max_angle_deg', 'target_angle_deg', 'min_overlap')
-        self._nb_kw = {k: getattr(self.mvs, k) for k in (*names, 'max_view_angle_deg')}
+        self.schedule = RefineScheduler(
+            ScheduleConfig(
+                num_workers=self.num_workers,
+                worker_index=self.worker_index,
+                min_neighbours=self.min_neighbours,
+                refine_again=self.refine_again,
+                depth_range=parse_depth_range(rng),
+                scene_depth_m=self.scene_depth,
+                near_ratio=self.near_ratio,
+                far_ratio=self.far_ratio,
+                mvs=self.mvs,
+            )
+        )
+        self.depth_range = self.schedule.config.depth_range
         self.refiner = DepthRefiner(RefinerConfig(sky=sky, mvs=self.mvs))
         self.bad = BadInput(self)
         self.pending: dict[int, _Pending] = {}
-        self.keyframes: dict[int, _Keyframe] = {}
+        self.frame_ids: dict[int, str] = {}  # header frame_id of each scheduled keyframe
         self.refine_times: list[float] = []
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._version = 0
         self._last_arrival = time.monotonic()
-        self._warned: set[str] = set()
         self._poseless: set[int] = set()  # frames with image and camera_info before any pose was seen
         self.poses_seen = 0
         qos = model_qos()
@@ -249,61 +219,14 @@ class DepthRefinerNode(Node):
         if mismatch := size_mismatch(f.camera.width, f.camera.height, f.image.shape, stamp):
             self.bad('camera_info', mismatch)
             return
-        if stamp in self.keyframes:
-            self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
-            return
-        mine = shard_of(stamp, self.num_workers) == self.worker_index
         with self._lock:
-            self.keyframes[stamp] = _Keyframe(stamp, MvsView(f.image, f.camera, f.pose), f.info, mine)
+            if not self.schedule.add(stamp, MvsView(f.image, f.camera, f.pose)):
+                self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
+                return
+            self.frame_ids[stamp] = f.info.header.frame_id or 'camera_optical'
             self._version += 1
             self._last_arrival = time.monotonic()
         self._wake.set()
-
-    # -- scheduling -----------------------------------------------------------------------------
-    def _range(self, kf: _Keyframe, others: list[_Keyframe]) -> tuple[float, float]:
-        if self.depth_range is not None:
-            return self.depth_range
-        s = self.scene_depth or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
-        if s is None:
-            c = kf.view.t_wc[:3, 3]
-            d = sorted(float(np.linalg.norm(o.view.t_wc[:3, 3] - c)) for o in others)[:2]
-            s = 12.5 * max(float(np.mean(d)), 0.1)
-            if 'range' not in self._warned:
-                self._warned.add('range')
-                self.get_logger().warning(
-                    f'optical axes do not converge: scene depth guessed as {s:.1f} m from the keyframe '
-                    'spacing; set scene_depth_m or depth_range'
-                )
-        return s * self.near_ratio, s * self.far_ratio
-
-    def _next_job(self) -> tuple[_Keyframe, list[_Keyframe], tuple[float, float]] | None:
-        """The oldest keyframe of this worker that is due for (re)refinement, with its neighbours."""
-        kfs = sorted(self.keyframes.values(), key=lambda k: k.stamp)
-        if len(kfs) < 2:
-            return None
-        poses = np.stack([k.view.t_wc for k in kfs])
-        cams = [k.view.camera for k in kfs]
-        flush = self.flush_after_s > 0 and time.monotonic() - self._last_arrival >= self.flush_after_s
-        for i, kf in enumerate(kfs):
-            if not kf.mine or (kf.used and not self.refine_again):
-                continue
-            others = kfs[:i] + kfs[i + 1 :]
-            rng = self._range(kf, others)
-            nbrs = select_neighbours(i, poses, cams, depth_range=rng, **self._nb_kw)
-            n = len(nbrs)
-            if kf.used:
-                due = n > len(kf.used)
-            else:
-                due = (n >= self.min_neighbours or (flush and n >= 1)) and n > kf.failed_with
-            if due:
-                return kf, [kfs[j] for j in nbrs], rng
-            if flush and n == 0 and 'alone' not in kf.reported:
-                kf.reported.add('alone')
-                self.get_logger().warning(
-                    f'keyframe {kf.stamp} ns has no neighbour with enough overlap and parallax: '
-                    'not refined yet'
-                )
-        return None
 
     def _work(self) -> None:
         seen = -1
@@ -318,44 +241,47 @@ class DepthRefinerNode(Node):
                     continue
                 version = self._version
                 try:
-                    job = self._next_job()
+                    job = self.schedule.next_job(flush=flush_due)
                 except BAD_MESSAGE as exc:  # a degenerate keyframe set (e.g. coincident cameras)
                     self.bad('neighbours', str(exc))
                     job = None
+                for warning in self.schedule.pop_warnings():
+                    self.get_logger().warning(warning)
                 if job is None:
                     seen = version
                     if flush_due:  # nothing left to do until new keyframes arrive
                         self._last_arrival = math.inf
                     continue
             try:
-                self._refine(*job)
+                ok = self._refine(job)
             except Exception as exc:  # the worker survives any one keyframe
                 if self._stop.is_set():
                     return
-                self.get_logger().error(f'refining keyframe {job[0].stamp} ns failed: {exc!r}')
-                job[0].failed_with = len(job[1])
+                self.get_logger().error(f'refining keyframe {job.stamp} ns failed: {exc!r}')
+                ok = False
+            with self._lock:
+                (self.schedule.done if ok else self.schedule.failed)(job)
             self._wake.set()  # look for the next job straight away
 
     # -- refinement -----------------------------------------------------------------------------
-    def _refine(self, kf: _Keyframe, nbrs: list[_Keyframe], rng: tuple[float, float]) -> None:
+    def _refine(self, job: RefineJob) -> bool:
+        """Refine and publish ``job``; False when the refinement failed (counted as bad input)."""
         t0 = time.perf_counter()
-        mvs = compute_depth_maps([kf.view, *(n.view for n in nbrs)], options=self.mvs, depth_range=rng)[0]
+        n, rng = len(job.neighbours), job.depth_range
+        mvs = compute_depth_maps(job.views, options=self.mvs, depth_range=rng)[0]
         t1 = time.perf_counter()
         try:
-            r = self.refiner.refine_from_mvs(kf.view, mvs.depth)
+            r = self.refiner.refine_from_mvs(job.view, mvs.depth)
         except RefineError as exc:
-            kf.failed_with = len(nbrs)
-            self.bad(
-                'refine', f'keyframe {kf.stamp} ns ({len(nbrs)} neighbours, MVS {mvs.reason or "ok"}): {exc}'
-            )
-            return
+            self.bad('refine', f'keyframe {job.stamp} ns ({n} neighbours, MVS {mvs.reason or "ok"}): {exc}')
+            return False
         t2 = time.perf_counter()
         if self._stop.is_set():
-            return
-        header = msg_utils.make_header(kf.stamp, kf.info.header.frame_id or 'camera_optical')
+            return False
+        header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
         depth = np.where(r.depth > 0, r.depth, np.float32(np.nan)).astype(np.float32)
         self.pub_depth.publish(msg_utils.numpy_to_image(depth, '32FC1', header))
-        info = msg_utils.pinhole_to_camera_info(kf.view.camera, header)
+        info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
         if self.debug:
             nan0 = lambda d: np.where(d > 0, d, np.float32(np.nan)).astype(np.float32)  # noqa: E731
@@ -368,15 +294,15 @@ class DepthRefinerNode(Node):
             }
             for name, msg in out.items():
                 self.debug[name].publish(msg)
-        again = ' again' if kf.used else ''
-        kf.used = tuple(n.stamp for n in nbrs)
+        again = ' again' if job.again else ''
         self.refine_times.append(t2 - t0)
         flags = f', flags {",".join(r.flags)}' if r.flags else ''
         self.get_logger().info(
-            f'refined{again} keyframe {kf.stamp} ns with {len(nbrs)} neighbours in {t2 - t0:.2f} s '
+            f'refined{again} keyframe {job.stamp} ns with {n} neighbours in {t2 - t0:.2f} s '
             f'(MVS {t1 - t0:.2f} s, refine {t2 - t1:.2f} s; MVS completeness {r.mvs_completeness:.2f}, '
             f'range {rng[0]:.1f}-{rng[1]:.1f} m{flags})'
         )
+        return True
 
     def destroy_node(self) -> None:
         self._stop.set()

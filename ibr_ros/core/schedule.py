@@ -1,0 +1,285 @@
+"""Which keyframe to refine next, with which MVS neighbours and over which depth range.
+
+Pure scheduling policy of the ``depth_refiner`` node and the offline ``ibr process`` job; it keeps
+the keyframes (``MvsView``, poses are 4x4 camera-to-world matrices in metres, stamps in ns) but does
+no image work itself.
+
+* Sharding: with ``num_workers`` > 1 every worker sees all keyframes (they are everybody's
+  neighbours) but refines only those whose stamp hashes to its ``worker_index`` (:func:`shard_of`,
+  independent of arrival order), so each keyframe is refined exactly once.
+* Due: a keyframe of this worker is due once :func:`~ibr_ros.core.mvs.select_neighbours` finds
+  ``min_neighbours`` source views among the keyframes added so far, or, with ``flush`` (the end of
+  a flight), at least one; never again with the same or fewer neighbours than a failed attempt.
+  With ``refine_again`` a refined keyframe is due again whenever more neighbours (up to
+  ``mvs.max_neighbours``) become available (and more than in a failed attempt). The oldest due
+  keyframe comes first.
+* Depth range of the MVS sweep: ``depth_range`` ``(near, far)`` (m) when set; else
+  ``(near_ratio, far_ratio) x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
+  when set, else :func:`axis_scene_depth` (oblique and orbit flights), else (parallel axes, e.g. a
+  nadir survey) 12.5 x the mean distance to the two nearest keyframes (the inverse of the
+  frame_subsampler's 0.08 baseline ratio), with a warning to set ``scene_depth_m``.
+
+Warnings are returned once each by :meth:`RefineScheduler.pop_warnings` for the caller to log.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ibr_ros.core.mvs import MvsOptions, MvsView, select_neighbours
+
+__all__ = [
+    'RefineJob',
+    'RefineScheduler',
+    'ScheduleConfig',
+    'axis_scene_depth',
+    'parse_depth_range',
+    'shard_of',
+]
+
+_NEIGHBOUR_OPTIONS = (
+    'max_neighbours',
+    'min_angle_deg',
+    'max_angle_deg',
+    'target_angle_deg',
+    'min_overlap',
+    'max_view_angle_deg',
+)
+
+
+def shard_of(stamp_ns: int, num_workers: int) -> int:
+    """The worker (0 .. ``num_workers`` - 1) that refines the keyframe stamped ``stamp_ns``."""
+    digest = hashlib.blake2b(int(stamp_ns).to_bytes(8, 'little', signed=True), digest_size=8).digest()
+    return int.from_bytes(digest, 'little') % num_workers
+
+
+def axis_scene_depth(t_wc: np.ndarray, others: Sequence[np.ndarray]) -> float | None:
+    """Median distance (m) along the optical axis of ``t_wc`` to its closest approach to the other axes.
+
+    Only axes 3-90 deg apart whose closest points lie in front of both cameras count; None when
+    there is none (parallel axes).
+    """
+    c0, a0 = t_wc[:3, 3], t_wc[:3, 2]
+    dists = []
+    for t in others:
+        c1, a1 = t[:3, 3], t[:3, 2]
+        b = float(a0 @ a1)
+        if not math.cos(math.radians(90.0)) <= b <= math.cos(math.radians(3.0)):
+            continue
+        w = c0 - c1
+        d, e = float(a0 @ w), float(a1 @ w)
+        s, u = (b * e - d) / (1 - b * b), (e - b * d) / (1 - b * b)
+        if s > 0 and u > 0:
+            dists.append(s)
+    return float(np.median(dists)) if dists else None
+
+
+def parse_depth_range(values: Sequence[float], name: str = 'depth_range') -> tuple[float, float] | None:
+    """``[near, far]`` (m, 0 < near < far < inf) as a tuple, ``[0, 0]`` as None (automatic).
+
+    Raises ValueError naming ``name`` and the value otherwise.
+    """
+    vals = [float(v) for v in values]
+    if len(vals) == 2 and vals == [0.0, 0.0]:
+        return None
+    if len(vals) != 2 or not 0 < vals[0] < vals[1] < math.inf:
+        raise ValueError(f'{name} must be [near, far] with 0 < near < far, or [0, 0]; got {list(values)}')
+    return vals[0], vals[1]
+
+
+@dataclass(frozen=True)
+class ScheduleConfig:
+    """Policy of :class:`RefineScheduler` (see the module docstring).
+
+    ``mvs``: its ``max_neighbours`` and neighbour-selection options (``min_angle_deg``,
+    ``max_angle_deg``, ``target_angle_deg``, ``min_overlap``, ``max_view_angle_deg``) are used.
+    ``depth_range``: (near, far) in metres or None (automatic); ``scene_depth_m``: 0 = estimate.
+    """
+
+    num_workers: int = 1
+    worker_index: int = 0
+    min_neighbours: int = 2
+    refine_again: bool = False
+    depth_range: tuple[float, float] | None = None
+    scene_depth_m: float = 0.0
+    near_ratio: float = 0.25
+    far_ratio: float = 4.0
+    mvs: MvsOptions = field(default_factory=MvsOptions)
+
+    def __post_init__(self) -> None:
+        if self.num_workers < 1:
+            raise ValueError(f'num_workers must be >= 1, got {self.num_workers}')
+        if not 0 <= self.worker_index < self.num_workers:
+            raise ValueError(
+                f'worker_index {self.worker_index} must be in [0, num_workers {self.num_workers})'
+            )
+        if self.min_neighbours < 1:
+            raise ValueError(f'min_neighbours must be >= 1, got {self.min_neighbours}')
+        if self.mvs.max_neighbours < self.min_neighbours:
+            raise ValueError(
+                f'max_neighbours {self.mvs.max_neighbours} must be >= min_neighbours {self.min_neighbours}'
+            )
+        if self.depth_range is not None:
+            parse_depth_range(self.depth_range)
+        if not 0 <= self.scene_depth_m < math.inf:
+            raise ValueError(f'scene_depth_m must be >= 0 (0 = estimate), got {self.scene_depth_m}')
+        if not 0 < self.near_ratio < self.far_ratio < math.inf:
+            raise ValueError(
+                f'near_ratio {self.near_ratio} and far_ratio {self.far_ratio} must satisfy 0 < near < far'
+            )
+
+    @property
+    def neighbour_options(self) -> dict[str, float]:
+        """Keyword arguments of :func:`~ibr_ros.core.mvs.select_neighbours` taken from ``mvs``."""
+        return {k: getattr(self.mvs, k) for k in _NEIGHBOUR_OPTIONS}
+
+
+@dataclass(frozen=True, eq=False)
+class RefineJob:
+    """One (re)refinement: keyframe ``stamp`` with its neighbours (stamps and views, best first).
+
+    ``depth_range``: (near, far) of the MVS sweep in metres; ``again``: it was refined before.
+    """
+
+    stamp: int
+    view: MvsView
+    neighbours: tuple[int, ...]
+    neighbour_views: tuple[MvsView, ...]
+    depth_range: tuple[float, float]
+    again: bool = False
+
+    @property
+    def views(self) -> list[MvsView]:
+        """The reference view first, then its neighbours (the input of ``compute_depth_maps``)."""
+        return [self.view, *self.neighbour_views]
+
+
+@dataclass(eq=False)
+class _Keyframe:
+    stamp: int
+    view: MvsView
+    mine: bool
+    used: tuple[int, ...] = ()  # neighbour stamps of the last successful refinement
+    failed_with: int = -1  # neighbour count of the last failed attempt
+    alone_warned: bool = False
+
+
+class RefineScheduler:
+    """Keeps the keyframes and hands out refinement jobs of this worker (see the module docstring).
+
+    Not thread-safe: callers sharing it between threads hold one lock around every call.
+    """
+
+    def __init__(self, config: ScheduleConfig | None = None) -> None:
+        self.config = config or ScheduleConfig()
+        self._kfs: dict[int, _Keyframe] = {}
+        self._warnings: list[str] = []
+        self._range_warned = False
+
+    def __len__(self) -> int:
+        return len(self._kfs)
+
+    def __contains__(self, stamp: object) -> bool:
+        return stamp in self._kfs
+
+    def is_mine(self, stamp_ns: int) -> bool:
+        """Whether this worker refines the keyframe stamped ``stamp_ns``."""
+        return shard_of(stamp_ns, self.config.num_workers) == self.config.worker_index
+
+    def add(self, stamp_ns: int, view: MvsView) -> bool:
+        """Add a keyframe; False (and nothing changes) when ``stamp_ns`` is already known."""
+        stamp = int(stamp_ns)
+        if stamp in self._kfs:
+            return False
+        self._kfs[stamp] = _Keyframe(stamp, view, self.is_mine(stamp))
+        return True
+
+    def refined(self) -> list[int]:
+        """Stamps of this worker's keyframes refined at least once, oldest first."""
+        return sorted(s for s, k in self._kfs.items() if k.mine and k.used)
+
+    def unrefined(self) -> list[int]:
+        """Stamps of this worker's keyframes not refined (yet), oldest first."""
+        return sorted(s for s, k in self._kfs.items() if k.mine and not k.used)
+
+    def pop_warnings(self) -> list[str]:
+        """Warnings raised since the last call (each situation is reported once)."""
+        out, self._warnings = self._warnings, []
+        return out
+
+    def depth_range(self, stamp_ns: int) -> tuple[float, float]:
+        """MVS (near, far) in metres for the keyframe ``stamp_ns`` given the other keyframes."""
+        kf = self._kfs[int(stamp_ns)]
+        return self._range(kf, [k for k in self._kfs.values() if k is not kf])
+
+    def _range(self, kf: _Keyframe, others: list[_Keyframe]) -> tuple[float, float]:
+        cfg = self.config
+        if cfg.depth_range is not None:
+            return cfg.depth_range
+        s = cfg.scene_depth_m or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
+        if s is None:
+            c = kf.view.t_wc[:3, 3]
+            d = sorted(float(np.linalg.norm(o.view.t_wc[:3, 3] - c)) for o in others)[:2]
+            s = 12.5 * max(float(np.mean(d)), 0.1) if d else 12.5 * 0.1
+            if not self._range_warned:
+                self._range_warned = True
+                self._warnings.append(
+                    f'optical axes do not converge: scene depth guessed as {s:.1f} m from the keyframe '
+                    'spacing; set scene_depth_m or depth_range'
+                )
+        return s * cfg.near_ratio, s * cfg.far_ratio
+
+    def next_job(self, flush: bool = False) -> RefineJob | None:
+        """The oldest keyframe of this worker due for (re)refinement, or None.
+
+        ``flush``: no more keyframes are expected for now, refine with a single neighbour too.
+        Raises ValueError from neighbour selection on a degenerate keyframe set.
+        """
+        kfs = sorted(self._kfs.values(), key=lambda k: k.stamp)
+        if len(kfs) < 2:
+            return None
+        cfg = self.config
+        poses = np.stack([k.view.t_wc for k in kfs])
+        cams = [k.view.camera for k in kfs]
+        for i, kf in enumerate(kfs):
+            if not kf.mine or (kf.used and not cfg.refine_again):
+                continue
+            rng = self._range(kf, kfs[:i] + kfs[i + 1 :])
+            nbrs = select_neighbours(i, poses, cams, depth_range=rng, **cfg.neighbour_options)
+            n = len(nbrs)
+            if kf.used:
+                due = n > len(kf.used) and n > kf.failed_with
+            else:
+                due = (n >= cfg.min_neighbours or (flush and n >= 1)) and n > kf.failed_with
+            if due:
+                chosen = [kfs[j] for j in nbrs]
+                return RefineJob(
+                    kf.stamp,
+                    kf.view,
+                    tuple(k.stamp for k in chosen),
+                    tuple(k.view for k in chosen),
+                    rng,
+                    again=bool(kf.used),
+                )
+            if flush and n == 0 and not kf.alone_warned:
+                kf.alone_warned = True
+                self._warnings.append(
+                    f'keyframe {kf.stamp} ns has no neighbour with enough overlap and parallax: '
+                    'not refined yet'
+                )
+        return None
+
+    def done(self, job: RefineJob) -> None:
+        """Record a successful refinement of ``job`` (it is due again only with more neighbours)."""
+        if (kf := self._kfs.get(job.stamp)) is not None:
+            kf.used = job.neighbours
+
+    def failed(self, job: RefineJob) -> None:
+        """Record a failed attempt: retried only once more neighbours than in ``job`` are found."""
+        if (kf := self._kfs.get(job.stamp)) is not None:
+            kf.failed_with = len(job.neighbours)

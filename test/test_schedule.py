@@ -1,0 +1,182 @@
+"""RefineScheduler: which keyframe is refined when, with which neighbours and depth range (no DDS)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry import look_at
+from ibr_ros.core.mvs import MvsOptions, MvsView
+from ibr_ros.core.schedule import (
+    RefineScheduler,
+    ScheduleConfig,
+    axis_scene_depth,
+    parse_depth_range,
+    shard_of,
+)
+
+CAM = PinholeCamera(64, 48, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]))
+RGB = np.zeros((48, 64, 3), np.uint8)
+T0 = 1_700_000_000_000_000_000
+
+
+def orbit_view(deg: float, radius: float = 100.0, height: float = 60.0) -> MvsView:
+    """A camera on a circle around the origin, looking at it (distance ~117 m)."""
+    a = math.radians(deg)
+    return MvsView(RGB, CAM, look_at([radius * math.cos(a), radius * math.sin(a), height], [0.0, 0.0, 0.0]))
+
+
+def nadir_view(x: float) -> MvsView:
+    """A camera 50 m up looking straight down (parallel optical axes along a line)."""
+    return MvsView(RGB, CAM, look_at([x, 0.0, 50.0], [x, 0.0, 0.0], up=(0.0, 1.0, 0.0)))
+
+
+def sched(**kw) -> RefineScheduler:
+    return RefineScheduler(ScheduleConfig(**kw))
+
+
+def drain(s: RefineScheduler, flush: bool = False) -> list[tuple[int, int, bool]]:
+    """Run every due job to completion: (stamp, neighbour count, again) in order."""
+    out = []
+    while (job := s.next_job(flush)) is not None:
+        out.append((job.stamp, len(job.neighbours), job.again))
+        s.done(job)
+    return out
+
+
+def test_config_errors_name_the_field_and_value():
+    with pytest.raises(ValueError, match=r'worker_index 2 must be in \[0, num_workers 2\)'):
+        ScheduleConfig(num_workers=2, worker_index=2)
+    with pytest.raises(ValueError, match='max_neighbours 1 must be >= min_neighbours 2'):
+        ScheduleConfig(mvs=MvsOptions(max_neighbours=1))
+    with pytest.raises(ValueError, match=r'depth_range .* got \[5.0, 1.0\]'):
+        ScheduleConfig(depth_range=(5.0, 1.0))
+    with pytest.raises(ValueError, match='scene_depth_m'):
+        ScheduleConfig(scene_depth_m=-1.0)
+    assert parse_depth_range([0, 0]) is None
+    assert parse_depth_range([1, 20]) == (1.0, 20.0)
+    for bad in ([1.0], [0.0, 5.0], [3.0, 2.0], [1.0, math.inf]):
+        with pytest.raises(ValueError, match='depth_range must be'):
+            parse_depth_range(bad)
+
+
+def test_waits_for_min_neighbours_then_refines_oldest_first():
+    s = sched(min_neighbours=2)
+    assert s.add(T0, orbit_view(0))
+    assert not s.add(T0, orbit_view(5))
+    assert len(s) == 1
+    assert s.next_job() is None  # a single keyframe
+    s.add(T0 + 2, orbit_view(8))
+    assert s.next_job() is None  # one neighbour each, two needed
+    s.add(T0 + 1, orbit_view(4))  # out of order: the scheduler sorts by stamp
+    job = s.next_job()
+    assert job.stamp == T0
+    assert set(job.neighbours) == {T0 + 1, T0 + 2}
+    assert not job.again
+    assert job.views[0] is job.view
+    assert len(job.views) == 3
+    s.done(job)
+    assert drain(s) == [(T0 + 1, 2, False), (T0 + 2, 2, False)]
+    assert s.refined() == [T0, T0 + 1, T0 + 2]
+    assert s.unrefined() == []
+    s.add(T0 + 3, orbit_view(12))
+    assert [j[0] for j in drain(s)] == [T0 + 3]  # no refine_again: the others stay done
+
+
+def test_flush_refines_with_one_neighbour_and_refine_again_adds_more():
+    s = sched(min_neighbours=2, refine_again=True)
+    s.add(T0, orbit_view(0))
+    s.add(T0 + 1, orbit_view(6))
+    assert s.next_job(flush=False) is None
+    assert drain(s, flush=True) == [(T0, 1, False), (T0 + 1, 1, False)]
+    s.add(T0 + 2, orbit_view(12))
+    assert drain(s) == [(T0, 2, True), (T0 + 1, 2, True), (T0 + 2, 2, False)]
+    assert drain(s, flush=True) == []
+
+
+def test_failed_job_is_retried_only_with_more_neighbours():
+    s = sched(min_neighbours=1)
+    s.add(T0, orbit_view(0))
+    s.add(T0 + 1, orbit_view(6))
+    job = s.next_job()
+    assert job.stamp == T0
+    s.failed(job)
+    assert s.next_job().stamp == T0 + 1  # the failed one is skipped
+    s.failed(s.next_job())
+    assert s.next_job(flush=True) is None
+    assert s.unrefined() == [T0, T0 + 1]
+    s.add(T0 + 2, orbit_view(12))
+    assert [j[:2] for j in drain(s)] == [(T0, 2), (T0 + 1, 2), (T0 + 2, 2)]
+
+
+def test_failed_refine_again_is_not_retried_in_a_loop():
+    s = sched(min_neighbours=1, refine_again=True)
+    s.add(T0, orbit_view(0))
+    s.add(T0 + 1, orbit_view(6))
+    drain(s)
+    s.add(T0 + 2, orbit_view(12))
+    job = s.next_job()
+    assert job.again
+    assert len(job.neighbours) == 2
+    s.failed(job)
+    assert s.next_job().stamp != T0
+
+
+def test_shards_split_the_keyframes_exactly_once():
+    stamps = [T0 + k * 100_000_000 for k in range(8)]
+    done = []
+    for w in (0, 1):
+        s = sched(num_workers=2, worker_index=w, min_neighbours=1)
+        for k, st in enumerate(stamps):
+            s.add(st, orbit_view(5 * k))
+        refined = [j[0] for j in drain(s)]
+        assert all(shard_of(st, 2) == w for st in refined)
+        assert all(s.is_mine(st) for st in refined)
+        done.append(set(refined))
+    assert done[0] | done[1] == set(stamps)
+    assert not done[0] & done[1]
+
+
+def test_depth_range_sources_and_the_parallel_axes_warning():
+    views = [orbit_view(10 * k) for k in range(4)]
+    s = sched()
+    for k, v in enumerate(views):
+        s.add(T0 + k, v)
+    dist = float(np.linalg.norm(views[0].t_wc[:3, 3]))
+    near, far = s.depth_range(T0)
+    assert near == pytest.approx(0.25 * dist, rel=0.02)
+    assert far == pytest.approx(4 * dist, rel=0.02)
+    assert axis_scene_depth(views[0].t_wc, [v.t_wc for v in views[1:]]) == pytest.approx(dist, rel=0.02)
+    fixed = sched(depth_range=(5.0, 50.0))
+    fixed.add(T0, views[0])
+    assert fixed.depth_range(T0) == (5.0, 50.0)
+    hint = sched(scene_depth_m=80.0, near_ratio=0.5, far_ratio=2.0)
+    hint.add(T0, views[0])
+    assert hint.depth_range(T0) == (40.0, 160.0)
+    assert s.pop_warnings() == []
+
+    nadir = sched()
+    for k in range(3):
+        nadir.add(T0 + k, nadir_view(4.0 * k))
+    assert nadir.depth_range(T0) == pytest.approx((12.5 * 6 * 0.25, 12.5 * 6 * 4))  # mean of 4 m and 8 m
+    nadir.depth_range(T0 + 1)
+    [warning] = nadir.pop_warnings()  # once, however often the range is guessed
+    assert 'set scene_depth_m or depth_range' in warning
+    assert nadir.pop_warnings() == []
+
+
+def test_a_keyframe_without_neighbours_is_reported_once_on_flush():
+    s = sched(min_neighbours=1, scene_depth_m=100.0)
+    s.add(T0, orbit_view(0))
+    s.add(T0 + 1, orbit_view(180))  # facing each other across the orbit: no overlap
+    assert s.next_job(flush=False) is None
+    assert s.pop_warnings() == []
+    assert s.next_job(flush=True) is None
+    warnings = s.pop_warnings()
+    assert len(warnings) == 2
+    assert all('has no neighbour' in w for w in warnings)
+    assert s.next_job(flush=True) is None
+    assert s.pop_warnings() == []
