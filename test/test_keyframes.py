@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from ibr_ros.core.geometry import look_at, matrix_from_rt, rotation_from_ypr
-from ibr_ros.core.keyframes import KeyframeConfig, KeyframeSelector, blur_score, select_keyframes
+from ibr_ros.core.keyframes import (
+    IntervalSelector,
+    KeyframeConfig,
+    KeyframeSelector,
+    blur_score,
+    select_keyframes,
+)
 from ibr_ros.core.synth import SceneConfig, build_scene, flight_camera, make_trajectory, render_view
 
 
@@ -67,3 +73,20 @@ def test_synthetic_frames_blur_and_bad_config():
         KeyframeConfig(blur_ratio=2.0)
     with pytest.raises(ValueError, match='one entry per frame'):
         select_keyframes([0, 1], [np.eye(4)], [1.0, 1.0])
+
+
+def test_interval_selector_keeps_the_sharpest_frame_per_window():
+    sel = IntervalSelector(1.0, KeyframeConfig(blur_ratio=0.5))
+    ms = 1_000_000
+    out = []
+    blur = {0: 100.0, 300: 120.0, 600: 30.0, 900: 110.0, 1200: 90.0, 1500: 95.0, 2100: 100.0, 2400: 10.0}
+    for t, b in blur.items():
+        out += sel.push(t * ms, b, f'frame {t}')
+    assert out == [(300 * ms, 'frame 300'), (1500 * ms, 'frame 1500')]
+    assert sel.push(500 * ms, 500.0, 'late') == []  # an older window is closed
+    assert sel.rejected == {'blurred': 2, 'late': 1}  # 600 ms and 2400 ms are blurred
+    assert sel.flush() == [(2100 * ms, 'frame 2100')]
+    assert sel.flush() == []
+    assert sel.count == 3
+    with pytest.raises(ValueError, match='interval_s must be > 0'):
+        IntervalSelector(0.0)

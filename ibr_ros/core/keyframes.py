@@ -4,6 +4,9 @@ The paper subsamples 20-30 images per flight. A frame becomes a keyframe when it
 relative to the last keyframe, its camera moved by at least ``baseline_ratio`` x the scene depth
 (or ``min_baseline_m`` when the depth is unknown), turned by ``max_rotation_deg``, or
 ``max_interval_s`` passed. Poses are 4x4 camera-to-world matrices (metres); stamps are nanoseconds.
+
+Without poses (SfM mode), :class:`IntervalSelector` keeps the sharpest frame of every
+``interval_s`` window instead.
 """
 
 from __future__ import annotations
@@ -12,12 +15,22 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Generic, TypeVar
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ['Decision', 'KeyframeConfig', 'KeyframeSelector', 'blur_score', 'select_keyframes']
+__all__ = [
+    'Decision',
+    'IntervalSelector',
+    'KeyframeConfig',
+    'KeyframeSelector',
+    'blur_score',
+    'select_keyframes',
+]
+
+T = TypeVar('T')
 
 
 def blur_score(image: NDArray[np.uint8], *, max_side: int = 480) -> float:
@@ -125,6 +138,58 @@ class KeyframeSelector:
         self._last_stamp = stamp_ns
         self.count += 1
         return d
+
+
+class IntervalSelector(Generic[T]):
+    """Keyframes without poses: the sharpest frame of each ``interval_s`` window of stamps.
+
+    Windows are consecutive intervals of ``interval_s`` seconds from the first frame's stamp. A frame
+    is a candidate unless it is blurred by the rule of :class:`KeyframeSelector` (below
+    ``blur_ratio`` x the median :func:`blur_score` of the last ``blur_window`` frames, or below
+    ``min_blur_score``); frames older than the current window are ignored. A window's choice is
+    known when a frame of a later window arrives (:meth:`push`) or at the end (:meth:`flush`), so
+    keyframes come up to one interval late. ``item`` is any payload returned with the choice.
+    """
+
+    def __init__(self, interval_s: float, config: KeyframeConfig | None = None) -> None:
+        if not (math.isfinite(interval_s) and interval_s > 0):
+            raise ValueError(f'interval_s must be > 0, got {interval_s}')
+        self.interval_ns = round(interval_s * 1e9)
+        self.config = config or KeyframeConfig()
+        self._blur: deque[float] = deque(maxlen=self.config.blur_window)
+        self._t0: int | None = None
+        self._window = -1
+        self._best: tuple[int, float, T] | None = None
+        self.count = 0
+        self.rejected: dict[str, int] = {'blurred': 0, 'late': 0}
+
+    def push(self, stamp_ns: int, blur: float, item: T) -> list[tuple[int, T]]:
+        """Offer one frame; return the keyframes (stamp, item) decided by it (0 or 1)."""
+        c = self.config
+        if self._t0 is None:
+            self._t0 = int(stamp_ns)
+        window = (int(stamp_ns) - self._t0) // self.interval_ns
+        if window < self._window:
+            self.rejected['late'] += 1
+            return []
+        out = self.flush() if window > self._window else []
+        self._window = window
+        median_blur = float(np.median(self._blur)) if self._blur else blur
+        self._blur.append(blur)
+        if blur < c.min_blur_score or (len(self._blur) > 1 and blur < c.blur_ratio * median_blur):
+            self.rejected['blurred'] += 1
+        elif self._best is None or blur > self._best[1]:
+            self._best = (int(stamp_ns), blur, item)
+        return out
+
+    def flush(self) -> list[tuple[int, T]]:
+        """The choice of the current window, if it has a candidate (then the window is closed)."""
+        if self._best is None:
+            return []
+        stamp, _, item = self._best
+        self._best = None
+        self.count += 1
+        return [(stamp, item)]
 
 
 def select_keyframes(
