@@ -26,9 +26,10 @@ rotation is averaged from the camera orientations instead), so already-published
 keep one frame and scale. A common view counts as consistent when its centre moved by less than
 ``inlier_ratio`` x the median spacing of the common centres and its orientation by less than
 ``max_rotation_deg``; when fewer than 2 (or fewer than half) are consistent the new model is
-rejected (the previous poses stay), unless it registers at least twice as many views, which
-redefines the frame (``reset``). The one other reset: an ``'sfm'`` session whose model becomes
-GPS-aligned switches to ``'enu'``. After a reset every earlier pose and depth is superseded.
+rejected (the previous poses stay), unless it registers at least twice as many views and
+``redefine`` is set, which redefines the frame (``reset``). The one other reset: an ``'sfm'``
+session whose model becomes GPS-aligned switches to ``'enu'``. After a reset every earlier pose
+and depth is superseded.
 
 Cost: each update re-extracts and re-matches all views (exhaustive matching up to
 ``SfmOptions.exhaustive_max_images``); ``max_side`` downscales the images for SfM only.
@@ -148,7 +149,8 @@ class SfmSession:
 
     ``options``: passed to :func:`register_images` (default: ``SfmOptions(num_threads=2)``);
     ``max_side``: longest image side (px) used for SfM, larger views are downscaled (0 = as given);
-    ``min_registered``: views the first reconstruction must register to be accepted.
+    ``min_registered``: views the first reconstruction must register to be accepted;
+    ``inlier_ratio``, ``max_rotation_deg``, ``redefine``: the alignment to the previous frame.
     """
 
     def __init__(
@@ -160,6 +162,7 @@ class SfmSession:
         min_registered: int = 3,
         inlier_ratio: float = 0.1,
         max_rotation_deg: float = 2.0,
+        redefine: bool = True,
     ) -> None:
         if max_side < 0 or min_registered < 2 or inlier_ratio <= 0 or max_rotation_deg <= 0:
             raise ValueError(
@@ -172,6 +175,7 @@ class SfmSession:
         self.min_registered = int(min_registered)
         self.inlier_ratio = float(inlier_ratio)
         self.max_rotation_deg = float(max_rotation_deg)
+        self.redefine = bool(redefine)
         self._views: dict[int, _View] = {}
         self._camera: PinholeCamera | None = None  # the prior, at the input resolution
         self._scale = 1.0  # SfM image size / input image size
@@ -289,7 +293,7 @@ class SfmSession:
             fit, why = self._fit_to_previous(new)
             if fit is not None:
                 m, rms = fit
-            elif len(new) >= 2 * len(self._poses):
+            elif self.redefine and len(new) >= 2 * len(self._poses):
                 m, frame, reset = self._define_frame(res), 'enu' if res.metric else 'sfm', True
                 reason = f'frame redefined ({why}; the new model registers {len(new)} views)'
                 LOG.warning('SfM session: %s', reason)
