@@ -1,5 +1,6 @@
 """Shared plumbing of the ibr_ros nodes: QoS profiles, parameters with descriptors, bad-input
-accounting and the process entry point (init, spin, clean shutdown)."""
+accounting, matching messages by stamp (:class:`~ibr_ros.core.stamps.StampAssembler`, re-exported)
+and the process entry point (init, spin, clean shutdown)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -21,7 +23,26 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-__all__ = ['BadInput', 'declare', 'model_qos', 'reliable_qos', 'run_node', 'sensor_qos', 'size_mismatch']
+import msg_utils
+from ibr_ros.core.camera import CameraError
+from ibr_ros.core.geometry import GeometryError
+from ibr_ros.core.stamps import StampAssembler
+
+__all__ = [
+    'BAD_MESSAGE',
+    'BadInput',
+    'StampAssembler',
+    'declare',
+    'model_qos',
+    'reliable_qos',
+    'run_node',
+    'sensor_qos',
+    'size_mismatch',
+    'subscribe_field',
+]
+
+#: What converting a malformed message raises (msg_utils, camera and pose validation).
+BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 
 LOG = logging.getLogger(__name__)
 
@@ -89,6 +110,33 @@ class BadInput:
     @property
     def total(self) -> int:
         return sum(self.counts.values())
+
+
+def subscribe_field(
+    node: Node,
+    msg_type: type,
+    topic: str,
+    qos: QoSProfile,
+    field: str,
+    convert: Callable[[Any], Any],
+    put: Callable[[int, str, Any], None],
+    bad: BadInput,
+) -> object:
+    """Subscribe ``topic``; each message goes through ``convert`` and on to ``put(stamp_ns, field, value)``.
+
+    A message that ``convert`` rejects (:data:`BAD_MESSAGE`) is counted and logged by ``bad`` under
+    the reason ``field`` and dropped.
+    """
+
+    def callback(msg: Any) -> None:
+        try:
+            value = convert(msg)
+        except BAD_MESSAGE as exc:
+            bad(field, str(exc))
+            return
+        put(msg_utils.stamp_to_ns(msg.header.stamp), field, value)
+
+    return node.create_subscription(msg_type, topic, callback, qos)
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:

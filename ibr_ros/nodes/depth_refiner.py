@@ -41,7 +41,6 @@ import math
 import sys
 import threading
 import time
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -50,14 +49,21 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
-from ibr_ros.core.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
-from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node, size_mismatch
+from ibr_ros.nodes.common import (
+    BAD_MESSAGE,
+    BadInput,
+    StampAssembler,
+    declare,
+    model_qos,
+    reliable_qos,
+    run_node,
+    size_mismatch,
+    subscribe_field,
+)
 
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
 
 
@@ -74,14 +80,6 @@ def colourise(depth: np.ndarray) -> np.ndarray:
     out[:] = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
     out[~ok] = 0
     return out
-
-
-@dataclass
-class _Pending:
-    image: np.ndarray | None = None
-    info: CameraInfo | None = None
-    camera: PinholeCamera | None = None
-    pose: np.ndarray | None = None
 
 
 class DepthRefinerNode(Node):
@@ -129,7 +127,12 @@ class DepthRefinerNode(Node):
         self.depth_range = self.schedule.config.depth_range
         self.refiner = DepthRefiner(RefinerConfig(sky=sky, mvs=self.mvs))
         self.bad = BadInput(self)
-        self.pending: dict[int, _Pending] = {}
+        self.frames = StampAssembler(
+            ('image', 'camera_info', 'pose'),
+            self.max_pending,
+            lambda detail: self.bad('incomplete', detail),
+            what='keyframe',
+        )
         self.frame_ids: dict[int, str] = {}  # header frame_id of each scheduled keyframe
         self.refine_times: list[float] = []
         self._lock = threading.Lock()
@@ -140,9 +143,12 @@ class DepthRefinerNode(Node):
         self._poseless: set[int] = set()  # frames with image and camera_info before any pose was seen
         self.poses_seen = 0
         qos = model_qos()
-        self.create_subscription(Image, 'keyframes/image', self.on_image, qos)
-        self.create_subscription(CameraInfo, 'keyframes/camera_info', self.on_info, qos)
-        self.create_subscription(PoseStamped, 'keyframes/pose', self.on_pose, qos)
+        for msg_type, field, convert in (
+            (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),  # a copy, detached from m
+            (CameraInfo, 'camera_info', lambda m: (m.header.frame_id, msg_utils.camera_info_to_pinhole(m))),
+            (PoseStamped, 'pose', msg_utils.pose_stamped_to_matrix),
+        ):
+            subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
         self.pub_depth = self.create_publisher(Image, 'keyframes/depth', qos)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/depth/camera_info', qos)
         self.debug = {
@@ -157,57 +163,14 @@ class DepthRefinerNode(Node):
         )
 
     # -- input ----------------------------------------------------------------------------------
-    def _slot(self, stamp: int) -> _Pending | None:
-        """The pending frame of ``stamp``; when full, the oldest frame (maybe this one) is dropped."""
-        if stamp not in self.pending and len(self.pending) >= self.max_pending:
-            oldest = min(self.pending)
-            if stamp < oldest:
-                self.bad('incomplete', f'message of keyframe {stamp} ns is older than all pending ones')
-                return None
-            del self.pending[oldest]
-            self.bad('incomplete', f'keyframe at {oldest} ns never got all of image, camera_info and pose')
-        return self.pending.setdefault(stamp, _Pending())
-
-    def on_image(self, msg: Image) -> None:
-        try:
-            rgb = np.array(msg_utils.image_to_rgb(msg))  # a copy, detached from the message
-        except BAD_MESSAGE as exc:
-            self.bad('image', str(exc))
-            return
-        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
-        if (slot := self._slot(stamp)) is not None:
-            slot.image = rgb
-            self._try(stamp)
-
-    def on_info(self, msg: CameraInfo) -> None:
-        try:
-            camera = msg_utils.camera_info_to_pinhole(msg)
-        except BAD_MESSAGE as exc:
-            self.bad('camera_info', str(exc))
-            return
-        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
-        if (slot := self._slot(stamp)) is not None:
-            slot.info, slot.camera = msg, camera
-            self._try(stamp)
-
-    def on_pose(self, msg: PoseStamped) -> None:
-        try:
-            t_wc = msg_utils.pose_stamped_to_matrix(msg)
-        except BAD_MESSAGE as exc:
-            self.bad('pose', str(exc))
-            return
-        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
-        self.poses_seen += 1
-        if (slot := self._slot(stamp)) is not None:
-            slot.pose = t_wc
-            self._try(stamp)
-
-    def _try(self, stamp: int) -> None:
-        f = self.pending.get(stamp)
-        if f is None or f.image is None or f.camera is None:
-            return
-        if f.pose is None:
-            if not self.poses_seen and stamp not in self._poseless:
+    def _put(self, stamp: int, field: str, value: object) -> None:
+        if field == 'pose':
+            self.poses_seen += 1
+        if (f := self.frames.put(stamp, field, value)) is None:
+            partial = self.frames.partial(stamp)
+            if 'image' in partial and 'camera_info' in partial and not self.poses_seen:
+                if stamp in self._poseless:
+                    return
                 self._poseless.add(stamp)
                 if len(self._poseless) == 3:
                     self.get_logger().warning(
@@ -215,15 +178,15 @@ class DepthRefinerNode(Node):
                         '(SfM mode is not implemented yet)'
                     )
             return
-        del self.pending[stamp]
-        if mismatch := size_mismatch(f.camera.width, f.camera.height, f.image.shape, stamp):
+        image, (frame_id, camera), pose = f['image'], f['camera_info'], f['pose']
+        if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
             self.bad('camera_info', mismatch)
             return
         with self._lock:
-            if not self.schedule.add(stamp, MvsView(f.image, f.camera, f.pose)):
+            if not self.schedule.add(stamp, MvsView(image, camera, pose)):
                 self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
                 return
-            self.frame_ids[stamp] = f.info.header.frame_id or 'camera_optical'
+            self.frame_ids[stamp] = frame_id or 'camera_optical'
             self._version += 1
             self._last_arrival = time.monotonic()
         self._wake.set()

@@ -14,7 +14,6 @@ frame's header stamp. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -23,21 +22,17 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
-from ibr_ros.core.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.keyframes import KeyframeConfig, KeyframeSelector, blur_score
-from ibr_ros.nodes.common import BadInput, declare, model_qos, run_node, sensor_qos, size_mismatch
-
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
-
-
-@dataclass
-class _Frame:
-    image: np.ndarray | None = None
-    info: CameraInfo | None = None
-    camera: PinholeCamera | None = None
-    pose: np.ndarray | None = None
-    pose_frame: str = 'map'
+from ibr_ros.nodes.common import (
+    BadInput,
+    StampAssembler,
+    declare,
+    model_qos,
+    run_node,
+    sensor_qos,
+    size_mismatch,
+    subscribe_field,
+)
 
 
 class FrameSubsampler(Node):
@@ -69,84 +64,59 @@ class FrameSubsampler(Node):
             raise ValueError(f"parameter pose_type must be 'pose' or 'odometry', got {self.pose_type!r}")
         self.selector = KeyframeSelector(self.config)
         self.bad = BadInput(self)
-        self.pending: dict[int, _Frame] = {}
+        self.frames = StampAssembler(
+            ('image', 'camera_info', 'pose'),
+            self.max_pending,
+            lambda detail: self.bad('incomplete', detail),
+            supersede=True,  # a sensor stream arrives in order: older frames can no longer complete
+        )
         self.frames_seen = 0
         qos = sensor_qos()
-        if self.compressed:
-            self.create_subscription(CompressedImage, 'camera/image_raw/compressed', self.on_image, qos)
-        else:
-            self.create_subscription(Image, 'camera/image_raw', self.on_image, qos)
-        self.create_subscription(CameraInfo, 'camera/camera_info', self.on_info, qos)
-        pose_cls = Odometry if self.pose_type == 'odometry' else PoseStamped
-        self.create_subscription(pose_cls, 'camera/pose', self.on_pose, qos)
+        image_in = (
+            (CompressedImage, 'camera/image_raw/compressed')
+            if self.compressed
+            else (Image, 'camera/image_raw')
+        )
+        info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
+        pose_type = Odometry if self.pose_type == 'odometry' else PoseStamped
+        for msg_type, topic, field, convert in (
+            (*image_in, 'image', self._rgb),
+            (CameraInfo, 'camera/camera_info', 'camera_info', info),
+            (pose_type, 'camera/pose', 'pose', self._pose),
+        ):
+            subscribe_field(self, msg_type, topic, qos, field, convert, self._put, self.bad)
         out = model_qos()
         self.pub_image = self.create_publisher(Image, 'keyframes/image', out)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/camera_info', out)
         self.pub_pose = self.create_publisher(PoseStamped, 'keyframes/pose', out)
 
-    def _slot(self, stamp: int) -> _Frame:
-        if stamp not in self.pending and len(self.pending) >= self.max_pending:
-            oldest = min(self.pending)
-            del self.pending[oldest]
-            self.bad('incomplete', f'frame at {oldest} ns never got all of image, camera_info and pose')
-        return self.pending.setdefault(stamp, _Frame())
+    def _rgb(self, msg: Image | CompressedImage) -> np.ndarray:
+        rgb = msg_utils.compressed_image_to_numpy(msg) if self.compressed else msg_utils.image_to_rgb(msg)
+        return np.ascontiguousarray(np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb)
 
-    def on_image(self, msg: Image | CompressedImage) -> None:
-        try:
-            rgb = msg_utils.compressed_image_to_numpy(msg) if self.compressed else msg_utils.image_to_rgb(msg)
-            if rgb.ndim == 2:
-                rgb = np.repeat(rgb[..., None], 3, axis=2)
-        except BAD_MESSAGE as exc:
-            self.bad('image', str(exc))
-            return
-        self._slot(msg_utils.stamp_to_ns(msg.header.stamp)).image = np.ascontiguousarray(rgb)
-        self._try(msg_utils.stamp_to_ns(msg.header.stamp))
+    def _pose(self, msg: PoseStamped | Odometry) -> tuple[np.ndarray, str]:
+        convert = (
+            msg_utils.odometry_to_matrix if self.pose_type == 'odometry' else msg_utils.pose_stamped_to_matrix
+        )
+        return convert(msg), msg.header.frame_id or 'map'
 
-    def on_info(self, msg: CameraInfo) -> None:
-        try:
-            camera = msg_utils.camera_info_to_pinhole(msg)
-        except BAD_MESSAGE as exc:
-            self.bad('camera_info', str(exc))
+    def _put(self, stamp: int, field: str, value: object) -> None:
+        if (f := self.frames.put(stamp, field, value)) is None:
             return
-        slot = self._slot(msg_utils.stamp_to_ns(msg.header.stamp))
-        slot.info, slot.camera = msg, camera
-        self._try(msg_utils.stamp_to_ns(msg.header.stamp))
-
-    def on_pose(self, msg: PoseStamped | Odometry) -> None:
-        try:
-            t_wc = (
-                msg_utils.odometry_to_matrix(msg)
-                if self.pose_type == 'odometry'
-                else msg_utils.pose_stamped_to_matrix(msg)
-            )
-        except BAD_MESSAGE as exc:
-            self.bad('pose', str(exc))
-            return
-        slot = self._slot(msg_utils.stamp_to_ns(msg.header.stamp))
-        slot.pose, slot.pose_frame = t_wc, msg.header.frame_id or 'map'
-        self._try(msg_utils.stamp_to_ns(msg.header.stamp))
-
-    def _try(self, stamp: int) -> None:
-        f = self.pending.get(stamp)
-        if f is None or f.image is None or f.camera is None or f.pose is None:
-            return
-        del self.pending[stamp]
-        for old in [s for s in self.pending if s < stamp]:  # older frames can no longer complete in order
-            del self.pending[old]
-            self.bad('incomplete', f'frame at {old} ns superseded before all its messages arrived')
-        if mismatch := size_mismatch(f.camera.width, f.camera.height, f.image.shape, stamp):
+        image, (info, camera), (pose, pose_frame) = f['image'], f['camera_info'], f['pose']
+        if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
-        d = self.selector.decide(stamp, f.pose, blur_score(f.image), self.scene_depth or None)
+        d = self.selector.decide(stamp, pose, blur_score(image), self.scene_depth or None)
         if not d.keep:
             self.get_logger().debug(f'frame {stamp}: skipped ({d.reason})')
             return
-        header = msg_utils.make_header(stamp, f.info.header.frame_id or 'camera_optical')
-        self.pub_image.publish(msg_utils.numpy_to_image(f.image, 'rgb8', header))
-        f.info.header = header
-        self.pub_info.publish(f.info)
-        self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(f.pose, stamp_ns=stamp, frame_id=f.pose_frame))
+        header = msg_utils.make_header(stamp, info.header.frame_id or 'camera_optical')
+        self.pub_image.publish(msg_utils.numpy_to_image(image, 'rgb8', header))
+        info.header = header
+        self.pub_info.publish(info)
+        self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(pose, stamp_ns=stamp, frame_id=pose_frame))
         self.get_logger().info(
             f'keyframe {self.selector.count} at {stamp} ns ({d.reason}: baseline {d.baseline_m:.1f} m, '
             f'rotation {d.rotation_deg:.1f} deg; {self.frames_seen} frames seen)'

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -35,23 +34,21 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
-from ibr_ros.core.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry import GeometryError, look_at
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry import look_at
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
-from ibr_ros.nodes.common import BadInput, declare, model_qos, reliable_qos, run_node
+from ibr_ros.nodes.common import (
+    BAD_MESSAGE,
+    BadInput,
+    StampAssembler,
+    declare,
+    model_qos,
+    reliable_qos,
+    run_node,
+    subscribe_field,
+)
 
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 INTRINSICS = ('width', 'height', 'hfov_deg')
-
-
-@dataclass
-class _Keyframe:
-    rgb: np.ndarray | None = None
-    camera: PinholeCamera | None = None
-    pose: np.ndarray | None = None
-    frame: str = ''
-    depth: np.ndarray | None = None
-    index: int = -1  # in the renderer, once added
 
 
 class ViewRenderer(Node):
@@ -87,16 +84,29 @@ class ViewRenderer(Node):
         self.renderer = NovelViewRenderer([], self.config)
         self.bad = BadInput(self)
         self.unanswered = BadInput(self)
-        self.keyframes: dict[int, _Keyframe] = {}
+        self.frames = StampAssembler(  # keyframes not in the model yet; model + pending <= max_keyframes
+            ('image', 'camera_info', 'pose', 'depth'),
+            self.max_keyframes,
+            lambda detail: self.bad('incomplete', detail),
+            what='keyframe',
+        )
+        self.indices: dict[int, int] = {}  # stamp -> view index in the renderer
         self.model_frame = ''
         self.latest_camera: PinholeCamera | None = None
         self.answered = 0
         self.latencies: list[float] = []
         qos = model_qos()
-        self.create_subscription(Image, 'keyframes/image', self.on_image, qos)
-        self.create_subscription(CameraInfo, 'keyframes/camera_info', self.on_info, qos)
-        self.create_subscription(PoseStamped, 'keyframes/pose', self.on_pose, qos)
-        self.create_subscription(Image, 'keyframes/depth', self.on_depth, qos)
+        for msg_type, field, convert in (
+            (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),
+            (CameraInfo, 'camera_info', msg_utils.camera_info_to_pinhole),
+            (
+                PoseStamped,
+                'pose',
+                lambda m: (msg_utils.pose_stamped_to_matrix(m), m.header.frame_id or 'map'),
+            ),
+            (Image, 'depth', lambda m: np.array(msg_utils.depth_image_to_m(m))),
+        ):
+            subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
         self.create_subscription(PoseStamped, 'novel_view/query', self.on_query, reliable_qos())
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
@@ -127,86 +137,55 @@ class ViewRenderer(Node):
         self.get_logger().info(f'warm-up render in {time.perf_counter() - t0:.2f} s')
 
     # -- model ----------------------------------------------------------------------------------
-    def _slot(self, stamp: int) -> _Keyframe:
-        if stamp not in self.keyframes and len(self.keyframes) >= self.max_keyframes:
-            waiting = [s for s, k in self.keyframes.items() if k.index < 0]
-            if not waiting:
-                raise OverflowError(f'model full ({self.max_keyframes} keyframes)')
-            del self.keyframes[min(waiting)]
-            self.bad('incomplete', f'keyframe at {min(waiting)} ns dropped before all its messages arrived')
-        return self.keyframes.setdefault(stamp, _Keyframe())
-
-    def _store(self, stamp: int, **fields: object) -> None:
-        try:
-            kf = self._slot(stamp)
-        except OverflowError as exc:
-            self.bad('model_full', str(exc))
+    def _put(self, stamp: int, field: str, value: object) -> None:
+        if stamp in self.indices:  # image, camera_info and pose are fixed once a keyframe is in the model
+            if field == 'depth':
+                v = self.renderer.views[self.indices[stamp]]
+                self._update(
+                    stamp, {'image': v.rgb, 'camera_info': v.camera, 'pose': (v.t_wc, ''), 'depth': value}
+                )
             return
-        if kf.index >= 0 and 'depth' not in fields:
-            return  # image, camera_info and pose of a keyframe are fixed once it is in the model
-        for k, v in fields.items():
-            setattr(kf, k, v)
-        self._update(stamp, kf)
-
-    def on_image(self, msg: Image) -> None:
-        try:
-            rgb = np.array(msg_utils.image_to_rgb(msg))
-        except BAD_MESSAGE as exc:
-            self.bad('image', str(exc))
-            return
-        self._store(msg_utils.stamp_to_ns(msg.header.stamp), rgb=rgb)
-
-    def on_info(self, msg: CameraInfo) -> None:
-        try:
-            cam = msg_utils.camera_info_to_pinhole(msg)
-        except BAD_MESSAGE as exc:
-            self.bad('camera_info', str(exc))
-            return
-        self._store(msg_utils.stamp_to_ns(msg.header.stamp), camera=cam)
-
-    def on_pose(self, msg: PoseStamped) -> None:
-        try:
-            t_wc = msg_utils.pose_stamped_to_matrix(msg)
-        except BAD_MESSAGE as exc:
-            self.bad('pose', str(exc))
-            return
-        self._store(msg_utils.stamp_to_ns(msg.header.stamp), pose=t_wc, frame=msg.header.frame_id or 'map')
-
-    def on_depth(self, msg: Image) -> None:
-        try:
-            depth = np.array(msg_utils.depth_image_to_m(msg))
-        except BAD_MESSAGE as exc:
-            self.bad('depth', str(exc))
-            return
-        self._store(msg_utils.stamp_to_ns(msg.header.stamp), depth=depth)
-
-    def _update(self, stamp: int, kf: _Keyframe) -> None:
-        if kf.rgb is None or kf.camera is None or kf.pose is None or kf.depth is None:
-            return
-        cam = kf.camera
-        if kf.rgb.shape[:2] != (cam.height, cam.width) or kf.depth.shape != (cam.height, cam.width):
+        free = self.max_keyframes - len(self.indices)
+        if free <= 0:
             self.bad(
-                'size',
-                f'keyframe {stamp} ns: image {kf.rgb.shape[1]}x{kf.rgb.shape[0]}, depth '
-                f'{kf.depth.shape[1]}x{kf.depth.shape[0]}, camera_info {cam.width}x{cam.height}',
+                'model_full', f'model full ({self.max_keyframes} keyframes): keyframe {stamp} ns dropped'
             )
-            kf.depth = None
             return
-        if self.model_frame and kf.frame != self.model_frame:
-            self.bad('frame', f'keyframe {stamp} ns is in {kf.frame!r}, the model in {self.model_frame!r}')
-            kf.depth = None
+        self.frames.max_pending = free
+        if (record := self.frames.put(stamp, field, value)) is not None:
+            self._update(stamp, record)
+
+    def _update(self, stamp: int, kf: dict[str, object]) -> None:
+        """Add complete keyframe ``kf`` to the model or replace its depth (a bad one waits for another)."""
+        rgb, cam, (pose, frame), depth = kf['image'], kf['camera_info'], kf['pose'], kf['depth']
+        replaced = stamp in self.indices
+        problem = None
+        if rgb.shape[:2] != (cam.height, cam.width) or depth.shape != (cam.height, cam.width):
+            problem = (
+                'size',
+                f'keyframe {stamp} ns: image {rgb.shape[1]}x{rgb.shape[0]}, depth '
+                f'{depth.shape[1]}x{depth.shape[0]}, camera_info {cam.width}x{cam.height}',
+            )
+        elif not replaced and self.model_frame and frame != self.model_frame:
+            problem = ('frame', f'keyframe {stamp} ns is in {frame!r}, the model in {self.model_frame!r}')
+        if problem is not None:
+            self.bad(*problem)
+            if not replaced:  # keep image, camera_info and pose waiting for another depth
+                for field in ('image', 'camera_info', 'pose'):
+                    self.frames.put(stamp, field, kf[field])
             return
-        self.model_frame = kf.frame
+        if not replaced:
+            self.model_frame = frame
         t0 = time.perf_counter()
-        view = SourceView(kf.rgb, kf.depth, cam, kf.pose, name=str(stamp), stamp=stamp * 1e-9)
-        replaced = kf.index >= 0
+        view = SourceView(rgb, depth, cam, pose, name=str(stamp), stamp=stamp * 1e-9)
         if replaced:
-            self.renderer.replace_view(kf.index, view)
+            index = self.indices[stamp]
+            self.renderer.replace_view(index, view)
         else:
-            kf.index = self.renderer.add_view(view)
+            index = self.indices[stamp] = self.renderer.add_view(view)
             self.latest_camera = cam
-        self.renderer.prepare([kf.index])
-        usable = self.renderer.skip_reason(kf.index)
+        self.renderer.prepare([index])
+        usable = self.renderer.skip_reason(index)
         self.get_logger().info(
             f'{"updated" if replaced else "added"} keyframe {stamp} ns '
             f'({len(self.renderer.views)} in the model{"; unusable: " + usable if usable else ""}; '

@@ -1,0 +1,95 @@
+"""Assemble the messages of one frame (image, camera_info, pose, ...) by identical header stamps.
+
+:class:`StampAssembler` keeps the partial records of at most ``max_pending`` stamps (ns). When a new
+stamp arrives while it is full, the oldest pending record is dropped, or the new message itself when
+it is older than everything pending; either way ``on_incomplete`` is called with a line naming the
+stamp and the missing fields (the nodes count it as rejected input, reason ``incomplete``). With
+``supersede`` (in-order sensor streams) completing a record also drops every older pending one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+__all__ = ['StampAssembler']
+
+
+class StampAssembler:
+    """Collects one value per field for each stamp; :meth:`put` returns the record once complete.
+
+    ``fields``: the names of the parts of a record; ``what``: how the detail lines name a record
+    ('frame', 'keyframe'). Not thread-safe.
+    """
+
+    def __init__(
+        self,
+        fields: Sequence[str],
+        max_pending: int,
+        on_incomplete: Callable[[str], None],
+        *,
+        what: str = 'frame',
+        supersede: bool = False,
+    ) -> None:
+        if not fields or len(set(fields)) != len(fields):
+            raise ValueError(f'fields must be distinct names, got {list(fields)}')
+        if max_pending < 1:
+            raise ValueError(f'max_pending must be >= 1, got {max_pending}')
+        self.fields = tuple(fields)
+        self.max_pending = int(max_pending)
+        self.on_incomplete = on_incomplete
+        self.what = what
+        self.supersede = supersede
+        self._pending: dict[int, dict[str, Any]] = {}
+
+    def __len__(self) -> int:
+        return len(self._pending)
+
+    def __contains__(self, stamp: object) -> bool:
+        return stamp in self._pending
+
+    def partial(self, stamp: int) -> dict[str, Any]:
+        """A copy of the pending fields of ``stamp`` (empty when none)."""
+        return dict(self._pending.get(stamp, {}))
+
+    def discard(self, stamp: int) -> None:
+        """Forget the pending record of ``stamp`` (no ``on_incomplete``)."""
+        self._pending.pop(stamp, None)
+
+    def _missing(self, record: dict[str, Any]) -> str:
+        return ', '.join(f for f in self.fields if f not in record)
+
+    def put(self, stamp: int, field: str, value: Any) -> dict[str, Any] | None:
+        """Store ``value`` as ``field`` of ``stamp`` (ns); the complete record (field -> value) or None.
+
+        A repeated field replaces the earlier value. Raises ValueError for an unknown ``field``.
+        """
+        if field not in self.fields:
+            raise ValueError(f'field must be one of {list(self.fields)}, got {field!r}')
+        stamp = int(stamp)
+        record = self._pending.get(stamp)
+        if record is None:
+            if len(self._pending) >= self.max_pending:
+                oldest = min(self._pending)
+                if stamp < oldest:
+                    n = len(self._pending)
+                    self.on_incomplete(
+                        f'{field} of {self.what} {stamp} ns is older than all {n} pending ones'
+                    )
+                    return None
+                self.on_incomplete(
+                    f'{self.what} at {oldest} ns dropped (max_pending {self.max_pending}) before its '
+                    f'{self._missing(self._pending.pop(oldest))} arrived'
+                )
+            record = self._pending[stamp] = {}
+        record[field] = value
+        if len(record) < len(self.fields):
+            return None
+        del self._pending[stamp]
+        if self.supersede:
+            for old in sorted(s for s in self._pending if s < stamp):
+                self.on_incomplete(
+                    f'{self.what} at {old} ns superseded by {stamp} ns before its '
+                    f'{self._missing(self._pending.pop(old))} arrived'
+                )
+        return record
