@@ -6,13 +6,16 @@ from __future__ import annotations
 
 import logging
 import math
+import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (
@@ -27,9 +30,11 @@ import msg_utils
 from ibr_ros.core.camera import CameraError
 from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.errors import UserError
 
 __all__ = [
     'BAD_MESSAGE',
+    'EXIT_BAD_CONFIG',
     'BadInput',
     'StampAssembler',
     'declare',
@@ -43,6 +48,9 @@ __all__ = [
 
 #: What converting a malformed message raises (msg_utils, camera and pose validation).
 BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
+
+#: Exit status of a node whose parameters are rejected at start-up.
+EXIT_BAD_CONFIG = 2
 
 LOG = logging.getLogger(__name__)
 
@@ -140,11 +148,23 @@ def subscribe_field(
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
-    """Initialise rclpy, spin the node made by ``factory`` until Ctrl-C or shutdown, clean up."""
+    """Initialise rclpy, spin the node made by ``factory`` until Ctrl-C or shutdown, clean up.
+
+    Returns 0, or :data:`EXIT_BAD_CONFIG` when ``factory`` rejects its parameters (UserError,
+    ValueError, rclpy ParameterException): the reason is logged as one error line, no traceback.
+    """
     rclpy.init(args=list(args) if args is not None else None)
     node = None
     try:
-        node = factory()
+        try:
+            node = factory()
+        except (UserError, ValueError, ParameterException) as exc:
+            module = sys.modules.get(getattr(factory, '__module__', ''))
+            name = Path(
+                getattr(module, '__file__', None) or 'node'
+            ).stem  # the node's module, also as __main__
+            rclpy.logging.get_logger(name).error(f'cannot start: {exc}')
+            return EXIT_BAD_CONFIG
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

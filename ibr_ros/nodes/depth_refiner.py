@@ -20,6 +20,16 @@ cameras; oblique and orbit flights), else (parallel axes, e.g. a nadir survey) 1
 distance to the two nearest keyframes (the inverse of the frame_subsampler's 0.08 baseline
 ratio), with a warning to set ``scene_depth_m``.
 
+Monocular depth (fills the MVS holes after the per-view LUT remap): ``mono`` ``'plane'`` (default,
+:class:`~ibr_ros.core.mono.GroundPlanePrior`, no model) or ``'onnx'`` with ``mono_model``: ``'ibr_mono'``
+(the shipped ``ibr_ros/models/ibr_mono.onnx``), a model of ``ibr models list`` fetched into the cache,
+or a path to an ``.onnx`` file; ``mono_preset`` names its I/O convention in
+:data:`~ibr_ros.core.mono.PRESETS` (``''``: the named model's own; required for a path). Sky mask:
+``sky`` ``'fallback'`` (default; horizon + colour cues + no MVS depth), ``'onnx'`` with ``sky_model``
+/ ``sky_preset`` likewise (:data:`~ibr_ros.core.sky.SKY_PRESETS`; ``'ibr_mono'`` is the shipped
+model's sky head) or ``'none'``. A bad value (unknown name or preset, missing or unloadable file)
+stops the node at start-up with one error line naming the parameter and value (exit status 2).
+
 Publishes (reliable, transient local): ``keyframes/depth`` (``sensor_msgs/Image`` ``32FC1``
 metres, REP-118: NaN unknown) and ``keyframes/depth/camera_info``, both with the keyframe's stamp.
 With ``publish_debug`` (reliable, volatile): ``depth/mvs``, ``depth/mono_remapped`` (``32FC1``),
@@ -49,9 +59,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
+from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
+from ibr_ros.errors import UserError
+from ibr_ros.models import mono_spec, sky_spec
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,
@@ -109,7 +122,16 @@ class DepthRefinerNode(Node):
         self.max_pending = int(
             p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
         )
-        sky = str(p('sky', 'fallback', "sky mask: 'fallback' (horizon + colour cues) or 'none'"))
+        mono = str(p('mono', 'plane', "monocular depth: 'plane' (ground-plane prior) or 'onnx' (mono_model)"))
+        mono_model = str(
+            p('mono_model', 'ibr_mono', "'ibr_mono' (shipped), a fetched model or an .onnx path")
+        )
+        mono_preset = str(p('mono_preset', '', "I/O convention of mono_model (a PRESETS name); '' = its own"))
+        sky = str(p('sky', 'fallback', "sky mask: 'fallback' (horizon + colour), 'onnx' (sky_model), 'none'"))
+        sky_model = str(p('sky_model', 'ibr_mono', "with sky 'onnx': 'ibr_mono' (shipped) or an .onnx path"))
+        sky_preset = str(
+            p('sky_preset', '', "I/O convention of sky_model (a SKY_PRESETS name); '' = its own")
+        )
         self.mvs = MvsOptions(max_neighbours=max_nb)
         self.schedule = RefineScheduler(
             ScheduleConfig(
@@ -125,7 +147,7 @@ class DepthRefinerNode(Node):
             )
         )
         self.depth_range = self.schedule.config.depth_range
-        self.refiner = DepthRefiner(RefinerConfig(sky=sky, mvs=self.mvs))
+        self.refiner = self._make_refiner(mono, mono_model, mono_preset, sky, sky_model, sky_preset)
         self.bad = BadInput(self)
         self.frames = StampAssembler(
             ('image', 'camera_info', 'pose'),
@@ -161,6 +183,31 @@ class DepthRefinerNode(Node):
             f'{self.min_neighbours} of up to {max_nb} neighbours; '
             f'depth range {self.depth_range or "automatic"}'
         )
+
+    def _make_refiner(
+        self, mono: str, mono_model: str, mono_preset: str, sky: str, sky_model: str, sky_preset: str
+    ) -> DepthRefiner:
+        """The refiner with the monocular and sky backends of the parameters; UserError naming the bad one."""
+        if mono not in ('plane', 'onnx'):
+            raise UserError(f"parameter mono must be 'plane' or 'onnx', got {mono!r}")
+        if sky not in ('fallback', 'onnx', 'none'):
+            raise UserError(f"parameter sky must be 'fallback', 'onnx' or 'none', got {sky!r}")
+        mono_spec_ = mono_spec(mono_model, mono_preset) if mono == 'onnx' else None
+        sky_spec_ = sky_spec(sky_model, sky_preset) if sky == 'onnx' else None
+        config = RefinerConfig(mono=mono, mono_model=mono_spec_, sky=sky, sky_model=sky_spec_, mvs=self.mvs)
+        try:
+            refiner = DepthRefiner(config)  # loads the mono model first, then the sky model
+        except MonoModelError as exc:
+            spec = (
+                mono_spec_ if mono_spec_ is not None and str(exc).startswith(str(mono_spec_.path)) else None
+            )
+            bad = f'mono_model {mono_model!r}' if spec is not None else f'sky_model {sky_model!r}'
+            path = (spec or sky_spec_ or mono_spec_).path
+            raise UserError(f'parameter {bad}: {str(exc).removeprefix(f"{path}: ")}') from exc
+        used = [f'mono {mono}' + (f' ({mono_spec_.path.name})' if mono_spec_ else '')]
+        used.append(f'sky {sky}' + (f' ({sky_spec_.path.name})' if sky_spec_ else ''))
+        self.get_logger().info(f'depth refinement with {", ".join(used)}')
+        return refiner
 
     # -- input ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
