@@ -84,6 +84,7 @@ def main() -> int:
     # -- per-view preparation and memory ----------------------------------------------------------
     renderers = {
         'ibr (paper blend)': NovelViewRenderer(views, RenderConfig()),
+        'ibr (paper, depth lookup)': NovelViewRenderer(views, RenderConfig(depth_lookup_steps=2)),
         'ibr (soft blend)': NovelViewRenderer(views, RenderConfig(blend='soft')),
         'splat (nearest view)': NovelViewRenderer(views, RenderConfig(renderer='splat')),
         'ulr': NovelViewRenderer(views, RenderConfig(renderer='ulr')),

@@ -264,6 +264,7 @@ def scores(flight):
         ('soft', RenderConfig(blend='soft')),
         ('splat', RenderConfig(renderer='splat')),
         ('ulr', RenderConfig(renderer='ulr')),
+        ('lookup', RenderConfig(depth_lookup_steps=2)),
     ):
         r = NovelViewRenderer(views, cfg).render(t_wc, camera)
         assert r.reason is None
@@ -292,6 +293,16 @@ def test_paper_beats_point_splat_in_the_tail(scores) -> None:
     assert scores['paper'][1].tail < scores['splat'][1].tail
     assert scores['paper'][1].auc < scores['splat'][1].auc
     assert scores['paper'][1].completeness > scores['splat'][1].completeness
+
+
+def test_depth_lookup_steps_sharpen_the_colour_lookup(scores) -> None:
+    """Newton steps on the source depth move colour lookups to the exact reprojection (exact depth)."""
+    paper, lookup = scores['paper'][1], scores['lookup'][1]
+    assert lookup.auc < paper.auc
+    assert lookup.median <= paper.median
+    assert lookup.completeness == paper.completeness  # same coverage: only the lookup moves
+    with pytest.raises(ValueError, match='depth_lookup_steps'):
+        RenderConfig(depth_lookup_steps=-1)
 
 
 def test_rendered_depth_matches_ground_truth(flight, scores) -> None:

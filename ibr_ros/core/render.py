@@ -31,7 +31,13 @@
    image at the pre-image of the pixel, done only for the views that contribute. Optional
    ``depth_tolerance`` (not in the paper, default off): only views whose superpixel depth is
    within ``(1 + tol)`` of the nearest one at that pixel take part. Sky superpixels are warped by
-   rotation only and get angle 0 (so the nearest view supplies the sky).
+   rotation only and get angle 0 (so the nearest view supplies the sky). Optional
+   ``depth_lookup_steps`` (not in the paper, default 0): the affine pre-image of each pixel is
+   corrected by that many Newton steps that reproject the source pixel at its own depth into the
+   novel view (at most ``depth_lookup_max_px`` px), so the colour comes from where the depth map
+   says instead of from the superpixel's affine approximation. Measured with ground-truth depth
+   on the shipped flight: AUC 6.24 -> 6.00 and worst 1 % 24.9 -> 24.6 with 2 steps, for about
+   +85 % render time (CPU 39 -> 73 ms at 960x540), hence off by default.
 
 The kernels run in parallel over bands of destination rows (numba threads); per query there are
 two parallel regions (rasterise all views, blend), the warp itself runs serially.
@@ -118,6 +124,8 @@ class RenderConfig:
         far_factor, max_distance_m: distance limit (see the module docstring).
         max_magnification: linear magnification above which a warped superpixel is dropped.
         soft_sigma_deg: falloff of ``blend='soft'``.
+        depth_lookup_steps, depth_lookup_max_px: optional per-pixel correction of the colour lookup
+            with the source depth (not in the paper, default off; see the module docstring).
         depth_tolerance: optional cross-view depth test of the blend (None: off, as the paper).
         max_cached_views: LRU size of the per-view cache.
         min_depth_samples, min_depth_fraction: ``has_depth`` rule of ``superpixel_stats``.
@@ -127,6 +135,8 @@ class RenderConfig:
 
     renderer: Literal['ibr', 'splat', 'ulr'] = 'ibr'
     blend: Literal['paper', 'soft'] = 'paper'
+    depth_lookup_steps: int = 0
+    depth_lookup_max_px: float = 3.0
     n_views: int = 4
     n_segments: int = 1500
     compactness: float = 10.0
@@ -162,6 +172,11 @@ class RenderConfig:
             raise ValueError('need 0 < max_axis_angle_deg <= 180 and max_magnification >= 1')
         if not self.soft_sigma_deg > 0:
             raise ValueError(f'soft_sigma_deg must be > 0, got {self.soft_sigma_deg}')
+        if self.depth_lookup_steps < 0 or not self.depth_lookup_max_px > 0:
+            raise ValueError(
+                f'need depth_lookup_steps >= 0 and depth_lookup_max_px > 0, got {self.depth_lookup_steps}, '
+                f'{self.depth_lookup_max_px}'
+            )
         if self.depth_tolerance is not None and not self.depth_tolerance >= 0:
             raise ValueError(f'depth_tolerance must be None or >= 0, got {self.depth_tolerance}')
 
@@ -434,6 +449,37 @@ def _bilinear_acc(img, u, v, wt, acc):
         acc[c] += wt * (top + fv * (bot - top))
 
 
+@njit(cache=True)
+def _refine_preimage(depth, rel, x, y, u, v, a00, a01, a10, a11, iters, max_shift):
+    """Pre-image ``(u, v)`` of novel pixel ``(x, y)`` corrected with the source depth (Newton steps).
+
+    The superpixel's affine map gives ``(u, v)``; each step projects source pixel ``(u, v)`` at its
+    own depth (nearest pixel) into the novel view and moves ``(u, v)`` by the affine map's linear part
+    ``a`` applied to the residual, by at most ``max_shift`` px in total. ``rel``: ``R`` (9), ``t``
+    (3), source ``fx, fy, cx, cy``, novel ``fx, fy, cx, cy``. Unknown or sky depth stops the steps.
+    """
+    h, w = depth.shape
+    u0, v0 = u, v
+    for _ in range(iters):
+        ui = min(max(int(u + 0.5), 0), w - 1)
+        vi = min(max(int(v + 0.5), 0), h - 1)
+        d = depth[vi, ui]
+        if not (d > 0 and d < np.inf):
+            break
+        dx = (u - rel[14]) / rel[12]
+        dy = (v - rel[15]) / rel[13]
+        xc = (rel[0] * dx + rel[1] * dy + rel[2]) * d + rel[9]
+        yc = (rel[3] * dx + rel[4] * dy + rel[5]) * d + rel[10]
+        zc = (rel[6] * dx + rel[7] * dy + rel[8]) * d + rel[11]
+        if not zc > 1e-6:
+            break
+        rx = x - (rel[16] * xc / zc + rel[18])
+        ry = y - (rel[17] * yc / zc + rel[19])
+        u = min(max(u + a00 * rx + a01 * ry, u0 - max_shift), u0 + max_shift)
+        v = min(max(v + a10 * rx + a11 * ry, v0 - max_shift), v0 + max_shift)
+    return u, v
+
+
 @njit(cache=True, parallel=True)
 def _blend(
     rgb0,
@@ -449,6 +495,13 @@ def _blend(
     tol,
     soft,
     sigma,
+    dep0,
+    dep1,
+    dep2,
+    dep3,
+    rel,
+    iters,
+    max_shift,
     out_rgb,
     out_valid,
     out_src,
@@ -498,6 +551,12 @@ def _blend(
             if not soft:
                 u = inv[b, kb, 0, 0] * x + inv[b, kb, 0, 1] * y + inv[b, kb, 0, 2]
                 v = inv[b, kb, 1, 0] * x + inv[b, kb, 1, 1] * y + inv[b, kb, 1, 2]
+                if iters > 0:
+                    u, v = _refine_preimage(
+                        _pick(dep0, dep1, dep2, dep3, b), rel[b], x, y, u, v,
+                        inv[b, kb, 0, 0], inv[b, kb, 0, 1], inv[b, kb, 1, 0], inv[b, kb, 1, 1], iters,
+                        max_shift,
+                    )  # fmt: skip
                 _bilinear_acc(_pick(rgb0, rgb1, rgb2, rgb3, b), u, v, np.float32(1.0), acc)
             else:
                 sw = np.float32(0.0)
@@ -508,6 +567,12 @@ def _blend(
                         wt = np.float32(math.exp(-d * d))
                         u = inv[j, k, 0, 0] * x + inv[j, k, 0, 1] * y + inv[j, k, 0, 2]
                         v = inv[j, k, 1, 0] * x + inv[j, k, 1, 1] * y + inv[j, k, 1, 2]
+                        if iters > 0:
+                            u, v = _refine_preimage(
+                                _pick(dep0, dep1, dep2, dep3, j), rel[j], x, y, u, v,
+                                inv[j, k, 0, 0], inv[j, k, 0, 1], inv[j, k, 1, 0], inv[j, k, 1, 1], iters,
+                                max_shift,
+                            )  # fmt: skip
                         _bilinear_acc(_pick(rgb0, rgb1, rgb2, rgb3, j), u, v, wt, acc)
                         sw += wt
                 acc /= sw
@@ -1000,9 +1065,21 @@ class NovelViewRenderer:
         tol = -1.0 if cfg.depth_tolerance is None else float(cfg.depth_tolerance)
         view_ids = np.array([i for i, _ in chosen], np.int16)
         soft = cfg.blend == 'soft'
+        iters = cfg.depth_lookup_steps
+        if iters > 0:
+            deps = [np.ascontiguousarray(self.views[i].depth, dtype=np.float32) for i, _ in chosen]
+            rel = np.zeros((n, 20))
+            kn = _intrinsics(camera)
+            for j, (i, _) in enumerate(chosen):
+                r, t = _relative(t_wn, self.views[i].t_wc)
+                rel[j] = np.concatenate([r.ravel(), t, _intrinsics(self.views[i].camera), kn])
+        else:
+            deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 20))
+        deps += [deps[0]] * (4 - len(deps))
         _blend(
-            *rgbs, ids, inv, pen, zk, n, view_ids, tol, soft, cfg.soft_sigma_deg, out_rgb, valid, src, depth
-        )
+            *rgbs, ids, inv, pen, zk, n, view_ids, tol, soft, cfg.soft_sigma_deg, *deps, rel, iters,
+            cfg.depth_lookup_max_px, out_rgb, valid, src, depth,
+        )  # fmt: skip
         return Rendered(out_rgb, valid, src, depth, [i for i, _ in chosen], None, self.skipped_views)
 
     def _render_splat(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
