@@ -117,3 +117,86 @@ def test_keyframes_from_the_shipped_bag(repo, subsampler):
     out, _ = subsampler.communicate(timeout=20)
     assert 'rejected input (pose' in out
     assert 'rejected input (image' in out
+
+
+def test_keyframes_without_poses(repo):
+    """No camera/pose: after ``pose_timeout_s`` the sharpest frame of every 1 s window, no pose topic."""
+    import contextlib
+    import threading
+
+    import cv2
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.serialization import deserialize_message
+
+    from ibr_ros.nodes.frame_subsampler import FrameSubsampler
+
+    size = (320, 180)
+    frames = []
+    for stamp, raw in _frames(repo, seconds=6.0, every=2):  # 30 frames, 0.2 s apart
+        rgb = msg_utils.compressed_image_to_numpy(deserialize_message(raw[TOPICS['image']], CompressedImage))
+        info = deserialize_message(raw[TOPICS['camera_info']], CameraInfo)
+        camera = msg_utils.camera_info_to_pinhole(info).scaled(size[0] / info.width, size[1] / info.height)
+        frames.append((stamp, cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), camera))
+    blurred = {frames[k][0] for k in (3, 12, 13, 14)}  # never keyframes
+    t0 = frames[0][0]
+    rclpy.init(args=['--ros-args', '-p', 'pose_timeout_s:=0.5', '-p', 'poseless_interval_s:=1.0'])
+    executor = SingleThreadedExecutor()
+    node = feeder = thread = None
+    try:
+        node = FrameSubsampler()
+        feeder = rclpy.create_node('poseless_feeder')
+        pub_img = feeder.create_publisher(Image, 'camera/image_raw', PUB_QOS)
+        pub_info = feeder.create_publisher(CameraInfo, 'camera/camera_info', PUB_QOS)
+        got: dict[str, list] = {'image': [], 'info': [], 'pose': []}
+        feeder.create_subscription(Image, 'keyframes/image', got['image'].append, LATCHED)
+        feeder.create_subscription(CameraInfo, 'keyframes/camera_info', got['info'].append, LATCHED)
+        feeder.create_subscription(PoseStamped, 'keyframes/pose', got['pose'].append, LATCHED)
+        executor.add_node(node)
+        executor.add_node(feeder)
+
+        def spin() -> None:
+            with contextlib.suppress(ExternalShutdownException):
+                executor.spin()
+
+        thread = threading.Thread(target=spin, daemon=True)
+        thread.start()
+
+        def wait(cond, timeout: float) -> bool:
+            deadline = time.monotonic() + timeout
+            while not cond() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            return cond()
+
+        assert wait(lambda: pub_img.get_subscription_count() and pub_info.get_subscription_count(), 30)
+        assert wait(lambda: node.pub_pose.get_subscription_count() > 0, 30)
+        for k, (stamp, rgb, camera) in enumerate(frames):
+            if stamp in blurred:
+                rgb = cv2.GaussianBlur(rgb, (0, 0), 3.0)
+            header = msg_utils.make_header(stamp, 'camera_optical')
+            pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
+            pub_img.publish(msg_utils.numpy_to_image(rgb, 'rgb8', header))
+            # Paced: the next frame goes out once the node has this one (pending or processed).
+            assert wait(
+                lambda s=stamp, n=k + 1: 'image' in node.frames.partial(s) or node.frames_seen >= n, 10
+            )
+        # Six 1 s windows: five closed by the next window's frames, the last after 1 s without frames.
+        assert wait(lambda: len(got['image']) == 6 and len(got['info']) == 6, 20), node.interval.rejected
+        assert node.poseless
+        assert node.frames_seen == len(frames)
+        bad = dict(node.bad.counts)
+    finally:
+        executor.shutdown(timeout_sec=5)
+        for n in (node, feeder):
+            if n is not None:
+                n.destroy_node()
+        rclpy.try_shutdown()
+        if thread is not None:
+            thread.join(timeout=10)
+    assert bad == {}
+    assert got['pose'] == []
+    stamps = [msg_utils.stamp_to_ns(m.header.stamp) for m in got['image']]
+    assert stamps == [msg_utils.stamp_to_ns(m.header.stamp) for m in got['info']]
+    assert [(s - t0) // 1_000_000_000 for s in stamps] == [0, 1, 2, 3, 4, 5]  # one per window
+    assert not blurred & set(stamps)
+    assert (got['image'][0].width, got['image'][0].height, got['image'][0].encoding) == (320, 180, 'rgb8')
+    assert (got['info'][0].width, got['info'][0].height) == (320, 180)

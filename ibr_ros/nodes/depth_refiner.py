@@ -41,8 +41,26 @@ neighbours) but refines only those whose stamp hashes to its ``worker_index``
 (:func:`~ibr_ros.core.schedule.shard_of`, independent of arrival order), so each keyframe is
 refined exactly once.
 
-The heavy work runs on one worker thread; the executor thread only stores messages. Frames
-without a pose are not refined: SfM mode (registering pose-less keyframes) is not implemented.
+SfM mode (keyframes without poses): with ``sfm_mode`` ``'always'``, or ``'auto'`` once
+``sfm_min_keyframes`` keyframes (image + camera_info) have waited ``sfm_pose_wait_s`` for a pose
+while no pose was ever received, keyframes are registered by :class:`~ibr_ros.core.sfm_session.SfmSession`
+(pycolmap on the CPU, the CameraInfo intrinsics as the prior, images downscaled to ``sfm_max_side``)
+instead of waiting for ``keyframes/pose``, which is then ignored (it carries this node's own
+poses). The first registration runs once ``sfm_min_keyframes`` keyframes are there, the next ones
+after every ``sfm_every`` new keyframes and when ``flush_after_s`` passed without a new one. Each
+newly registered keyframe's pose is published once on ``keyframes/pose`` (frame_id ``sfm``, stamp =
+the keyframe's; later registrations are aligned to the earlier ones, so the published poses keep
+one frame) and the keyframe is then refined like a posed one. The ``sfm`` frame: z up (the ground
+plane of the sparse points), origin on the ground below the first registered keyframe, x its
+viewing direction; unit: the distance between the first two registered keyframes, or metres with
+``sfm_scale`` (``'baseline'``: that distance, ``'altitude'``: the first keyframe's height above the
+ground, ``'depth'``: the median depth of the sparse points) = ``sfm_scale_m``. Depth maps are in the
+same unit; without a scale, ``depth_range`` and ``scene_depth_m`` (metres) are ignored. SfM runs
+on the worker thread; with ``num_workers`` > 1, ``'always'`` is a start-up error (one
+registration per graph) and ``'auto'`` acts as ``'off'``. With ``'off'`` frames without a pose are
+not refined.
+
+The heavy work runs on one worker thread; the executor thread only stores messages.
 """
 
 from __future__ import annotations
@@ -51,6 +69,7 @@ import math
 import sys
 import threading
 import time
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -59,10 +78,13 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
+from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
+from ibr_ros.core.sfm import SfmError
+from ibr_ros.core.sfm_session import ScaleHint, SfmSession
 from ibr_ros.errors import UserError
 from ibr_ros.models import mono_spec, sky_spec
 from ibr_ros.nodes.common import (
@@ -78,6 +100,8 @@ from ibr_ros.nodes.common import (
 )
 
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
+SFM_MODES = ('auto', 'always', 'off')
+SFM_SCALES = ('none', 'baseline', 'altitude', 'depth')
 
 
 def colourise(depth: np.ndarray) -> np.ndarray:
@@ -132,6 +156,53 @@ class DepthRefinerNode(Node):
         sky_preset = str(
             p('sky_preset', '', "I/O convention of sky_model (a SKY_PRESETS name); '' = its own")
         )
+        self.sfm_mode = str(
+            p('sfm_mode', 'auto', "register keyframes without poses: 'auto', 'always' or 'off'")
+        )
+        self.sfm_pose_wait_s = float(
+            p('sfm_pose_wait_s', 2.0, "'auto': wait this long for a pose (s)", limits=(0.0, 1e6))
+        )
+        self.sfm_min_keyframes = int(
+            p('sfm_min_keyframes', 4, 'keyframes of the first SfM registration', limits=(3, 10000))
+        )
+        self.sfm_every = int(
+            p('sfm_every', 2, 'register again after this many new keyframes', limits=(1, 10000))
+        )
+        sfm_max_side = int(p('sfm_max_side', 640, 'longest image side for SfM (px), 0 = as received',
+                             limits=(0, 100000)))  # fmt: skip
+        sfm_scale = str(p('sfm_scale', 'none', "SfM scale: 'none', 'baseline', 'altitude' or 'depth'"))
+        sfm_scale_m = float(p('sfm_scale_m', 0.0, 'the sfm_scale length in metres', limits=(0.0, 1e7)))
+        if self.sfm_mode not in SFM_MODES:
+            raise UserError(f"parameter sfm_mode must be 'auto', 'always' or 'off', got {self.sfm_mode!r}")
+        if sfm_scale not in SFM_SCALES:
+            raise UserError(
+                f"parameter sfm_scale must be 'none', 'baseline', 'altitude' or 'depth', got {sfm_scale!r}"
+            )
+        if sfm_scale != 'none' and sfm_scale_m <= 0:
+            raise UserError(
+                f'parameter sfm_scale_m must be > 0 with sfm_scale {sfm_scale!r}, got {sfm_scale_m}'
+            )
+        if self.num_workers > 1 and self.sfm_mode == 'always':
+            raise UserError(
+                f"parameter sfm_mode 'always' needs num_workers 1 (one SfM registration per graph), "
+                f'got num_workers {self.num_workers}'
+            )
+        if self.num_workers > 1 and self.sfm_mode == 'auto':
+            self.sfm_mode = 'off'
+            self.get_logger().info(
+                'num_workers > 1: sfm_mode auto acts as off (one SfM registration per graph)'
+            )
+        self.sfm = SfmSession(
+            scale_hint=ScaleHint(sfm_scale, sfm_scale_m) if sfm_scale != 'none' else None,  # type: ignore[arg-type]
+            max_side=sfm_max_side,
+            redefine=False,  # published poses must keep their frame
+        )
+        self.sfm_active = self.sfm_mode == 'always'
+        self.unit = 'm'  # of poses and depth: 'sfm units' in an SfM frame without a scale
+        self.sfm_times: list[float] = []
+        self._sfm_queue: list[int] = []  # stamps of keyframes waiting for SfmSession.add()
+        self._sfm_views: dict[int, tuple[np.ndarray, PinholeCamera, str]] = {}  # image, camera, frame_id
+        self._waiting: dict[int, float] = {}  # 'auto': stamp -> arrival time of image or camera_info
         self.mvs = MvsOptions(max_neighbours=max_nb)
         self.schedule = RefineScheduler(
             ScheduleConfig(
@@ -170,18 +241,25 @@ class DepthRefinerNode(Node):
             (CameraInfo, 'camera_info', lambda m: (m.header.frame_id, msg_utils.camera_info_to_pinhole(m))),
             (PoseStamped, 'pose', msg_utils.pose_stamped_to_matrix),
         ):
+            if field == 'pose' and self.sfm_mode == 'always':
+                continue  # keyframes/pose carries this node's own poses
             subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
+        self.pub_pose = (
+            self.create_publisher(PoseStamped, 'keyframes/pose', qos) if self.sfm_mode != 'off' else None
+        )
         self.pub_depth = self.create_publisher(Image, 'keyframes/depth', qos)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/depth/camera_info', qos)
         self.debug = {
             n: self.create_publisher(Image, n, reliable_qos()) for n in DEBUG_TOPICS if self.publish_debug
         }
+        if self.sfm_mode == 'auto':
+            self.create_timer(0.25, self._maybe_start_sfm)
         self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
         self._worker.start()
         self.get_logger().info(
             f'worker {self.worker_index}/{self.num_workers}: refining keyframes with >= '
             f'{self.min_neighbours} of up to {max_nb} neighbours; '
-            f'depth range {self.depth_range or "automatic"}'
+            f'depth range {self.depth_range or "automatic"}; SfM mode {self.sfm_mode}'
         )
 
     def _make_refiner(
@@ -212,17 +290,31 @@ class DepthRefinerNode(Node):
     # -- input ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
         if field == 'pose':
+            if self.sfm_active:
+                return  # this node's own poses (or another source's, which SfM mode ignores)
             self.poses_seen += 1
+            self._waiting.clear()
         if (f := self.frames.put(stamp, field, value)) is None:
             partial = self.frames.partial(stamp)
             if 'image' in partial and 'camera_info' in partial and not self.poses_seen:
+                if self.sfm_active:
+                    self.frames.discard(stamp)
+                    self._add_poseless(stamp, partial['image'], *partial['camera_info'])
+                    return
+                if self.sfm_mode == 'auto':
+                    self._waiting.setdefault(stamp, time.monotonic())
                 if stamp in self._poseless:
                     return
                 self._poseless.add(stamp)
                 if len(self._poseless) == 3:
                     self.get_logger().warning(
-                        'keyframes arrive without keyframes/pose: frames without poses are not refined '
-                        '(SfM mode is not implemented yet)'
+                        'keyframes arrive without keyframes/pose: '
+                        + (
+                            'frames without poses are not refined (sfm_mode off)'
+                            if self.sfm_mode == 'off'
+                            else f'SfM mode starts once {self.sfm_min_keyframes} of them waited '
+                            f'{self.sfm_pose_wait_s:g} s'
+                        )
                     )
             return
         image, (frame_id, camera), pose = f['image'], f['camera_info'], f['pose']
@@ -238,6 +330,95 @@ class DepthRefinerNode(Node):
             self._last_arrival = time.monotonic()
         self._wake.set()
 
+    # -- SfM mode -------------------------------------------------------------------------------
+    def _add_poseless(self, stamp: int, image: np.ndarray, frame_id: str, camera: PinholeCamera) -> None:
+        """Queue a keyframe without a pose for registration (executor thread; the worker adds it)."""
+        if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
+            self.bad('camera_info', mismatch)
+            return
+        with self._lock:
+            if stamp in self._sfm_views or stamp in self.schedule:
+                self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
+                return
+            self._sfm_views[stamp] = (image, camera, frame_id or 'camera_optical')
+            self._sfm_queue.append(stamp)
+            self._last_arrival = time.monotonic()
+        self._wake.set()
+
+    def _maybe_start_sfm(self) -> None:
+        """'auto': SfM mode once enough keyframes waited ``sfm_pose_wait_s`` without any pose (timer)."""
+        if self.sfm_active or self.sfm_mode != 'auto' or self.poses_seen or not self._waiting:
+            return
+        now = time.monotonic()
+        waiting = [
+            s for s in sorted(self._waiting) if {'image', 'camera_info'} <= set(self.frames.partial(s))
+        ]
+        if len(waiting) < self.sfm_min_keyframes or now - self._waiting[waiting[0]] < self.sfm_pose_wait_s:
+            return
+        self.sfm_active = True
+        self.get_logger().warning(
+            f'no keyframes/pose for {len(waiting)} keyframes within {self.sfm_pose_wait_s:g} s: SfM mode, '
+            'keyframes are registered here and their poses published on keyframes/pose'
+        )
+        for stamp in waiting:
+            partial = self.frames.partial(stamp)
+            self.frames.discard(stamp)
+            self._add_poseless(stamp, partial['image'], *partial['camera_info'])
+        self._waiting.clear()
+
+    def _sfm_due(self, flush: bool) -> bool:
+        """Whether the worker should register now (called with the lock held)."""
+        added = len(self._sfm_queue)
+        if not self.sfm_active or added == 0:
+            return False
+        if self.sfm.frame is None:
+            return len(self.sfm) + added >= self.sfm_min_keyframes
+        return added >= self.sfm_every or flush
+
+    def _register(self) -> None:
+        """Run one SfM update over all pose-less keyframes; publish and schedule the new poses (worker)."""
+        with self._lock:
+            queue, self._sfm_queue = self._sfm_queue, []
+        for stamp in queue:
+            image, camera, _ = self._sfm_views[stamp]
+            try:
+                self.sfm.add(stamp, image, camera)
+            except SfmError as exc:
+                self.bad('sfm', str(exc))
+        first = self.sfm.frame is None
+        u = self.sfm.update()
+        self.sfm_times.append(u.seconds)
+        if not u.accepted:
+            self.get_logger().warning(
+                f'SfM: {u.num_views} keyframes, none newly registered in {u.seconds:.2f} s: {u.reason}'
+            )
+            return
+        if first and not u.metric:
+            cfg = self.schedule.config
+            if cfg.depth_range is not None or cfg.scene_depth_m:
+                self.get_logger().warning(
+                    'SfM frame without a scale (set sfm_scale): depth_range and scene_depth_m are ignored'
+                )
+            with self._lock:
+                self.schedule = RefineScheduler(replace(cfg, depth_range=None, scene_depth_m=0.0))
+            self.depth_range = None
+            self.unit = 'sfm units'
+        world = 'map' if u.frame == 'enu' else 'sfm'
+        with self._lock:
+            for stamp in u.new:
+                image, camera, frame_id = self._sfm_views[stamp]
+                t_wc = u.poses[stamp]
+                self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
+                self.schedule.add(stamp, MvsView(image, camera, t_wc))
+                self.frame_ids[stamp] = frame_id
+            if u.new:
+                self._version += 1
+        unit = 'metres' if u.metric else 'unit = first baseline'
+        self.get_logger().info(
+            f'SfM: {u.num_registered}/{u.num_views} keyframes registered in {u.seconds:.2f} s '
+            f'({len(u.new)} new; frame {world}, {unit}; frame RMS {u.frame_rms:.3g})'
+        )
+
     def _work(self) -> None:
         seen = -1
         while not self._stop.is_set():
@@ -247,6 +428,15 @@ class DepthRefinerNode(Node):
                 flush_due = (
                     self.flush_after_s > 0 and time.monotonic() - self._last_arrival >= self.flush_after_s
                 )
+                sfm_due = self._sfm_due(flush_due)
+            if sfm_due:
+                try:
+                    self._register()
+                except Exception as exc:  # the worker survives a failed registration
+                    if self._stop.is_set():
+                        return
+                    self.get_logger().error(f'SfM registration failed: {exc!r}')
+            with self._lock:
                 if self._version == seen and not flush_due:
                     continue
                 version = self._version
@@ -310,7 +500,7 @@ class DepthRefinerNode(Node):
         self.get_logger().info(
             f'refined{again} keyframe {job.stamp} ns with {n} neighbours in {t2 - t0:.2f} s '
             f'(MVS {t1 - t0:.2f} s, refine {t2 - t1:.2f} s; MVS completeness {r.mvs_completeness:.2f}, '
-            f'range {rng[0]:.1f}-{rng[1]:.1f} m{flags})'
+            f'range {rng[0]:.1f}-{rng[1]:.1f} {self.unit}{flags})'
         )
         return True
 

@@ -9,11 +9,22 @@ matched by identical header stamps.
 Publishes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image`` rgb8),
 ``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), all three with the
 frame's header stamp. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector`.
+
+Without poses: when no pose has ever arrived and a frame's image and camera_info waited
+``pose_timeout_s`` (wall clock) for its pose, the node selects keyframes without poses from then
+on: the sharpest unblurred frame of every ``poseless_interval_s`` window of stamps
+(:class:`ibr_ros.core.keyframes.IntervalSelector`; a window's keyframe is published when the
+next window starts, or after ``poseless_interval_s`` without frames), published on
+``keyframes/image`` and ``keyframes/camera_info`` only; the depth_refiner registers them (its SfM
+mode). Choose the interval so that consecutive keyframes overlap well (SfM needs it). The first
+pose that arrives switches back to pose-based selection for good. ``pose_timeout_s`` 0: always
+wait for poses.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -22,7 +33,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
-from ibr_ros.core.keyframes import KeyframeConfig, KeyframeSelector, blur_score
+from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
 from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
@@ -60,6 +71,18 @@ class FrameSubsampler(Node):
                 p('blur_ratio', 0.6, 'blurred below this x median sharpness', limits=(0.0, 1.0))
             ),
         )
+        self.pose_timeout = float(
+            p('pose_timeout_s', 2.0, 'no pose in this time (s): keyframes without poses; 0 = never',
+              limits=(0.0, 1e6))
+        )  # fmt: skip
+        self.poseless_interval = float(
+            p(
+                'poseless_interval_s',
+                1.0,
+                'without poses: one keyframe per this many seconds',
+                limits=(1e-3, 1e6),
+            )
+        )
         if self.pose_type not in ('pose', 'odometry'):
             raise ValueError(f"parameter pose_type must be 'pose' or 'odometry', got {self.pose_type!r}")
         self.selector = KeyframeSelector(self.config)
@@ -71,6 +94,12 @@ class FrameSubsampler(Node):
             supersede=True,  # a sensor stream arrives in order: older frames can no longer complete
         )
         self.frames_seen = 0
+        self.keyframes = 0
+        self.poses_seen = 0
+        self.poseless = False  # selecting keyframes without poses
+        self.interval = IntervalSelector(self.poseless_interval, self.config)
+        self._waiting: dict[int, float] = {}  # stamp -> when its image and camera_info were there
+        self._last_poseless = time.monotonic()
         qos = sensor_qos()
         image_in = (
             (CompressedImage, 'camera/image_raw/compressed')
@@ -89,6 +118,8 @@ class FrameSubsampler(Node):
         self.pub_image = self.create_publisher(Image, 'keyframes/image', out)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/camera_info', out)
         self.pub_pose = self.create_publisher(PoseStamped, 'keyframes/pose', out)
+        if self.pose_timeout > 0:
+            self.create_timer(min(0.1, self.pose_timeout / 2), self._on_timer)
 
     def _rgb(self, msg: Image | CompressedImage) -> np.ndarray:
         rgb = msg_utils.compressed_image_to_numpy(msg) if self.compressed else msg_utils.image_to_rgb(msg)
@@ -101,7 +132,21 @@ class FrameSubsampler(Node):
         return convert(msg), msg.header.frame_id or 'map'
 
     def _put(self, stamp: int, field: str, value: object) -> None:
+        if field == 'pose':
+            self.poses_seen += 1
+            self._waiting.clear()
+            if self.poseless:
+                self.poseless = False
+                self.get_logger().warning('camera/pose arrives: keyframes are selected by pose again')
         if (f := self.frames.put(stamp, field, value)) is None:
+            if not self.poses_seen and self.pose_timeout > 0:
+                partial = self.frames.partial(stamp)
+                if 'image' in partial and 'camera_info' in partial:
+                    if self.poseless:
+                        self.frames.discard(stamp)
+                        self._poseless_frame(stamp, partial)
+                    else:
+                        self._waiting.setdefault(stamp, time.monotonic())
             return
         image, (info, camera), (pose, pose_frame) = f['image'], f['camera_info'], f['pose']
         if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
@@ -112,15 +157,60 @@ class FrameSubsampler(Node):
         if not d.keep:
             self.get_logger().debug(f'frame {stamp}: skipped ({d.reason})')
             return
+        self._publish(stamp, image, info, (pose, pose_frame))
+        self.get_logger().info(
+            f'keyframe {self.keyframes} at {stamp} ns ({d.reason}: baseline {d.baseline_m:.1f} m, '
+            f'rotation {d.rotation_deg:.1f} deg; {self.frames_seen} frames seen)'
+        )
+
+    def _publish(
+        self, stamp: int, image: np.ndarray, info: CameraInfo, pose: tuple[np.ndarray, str] | None
+    ) -> None:
+        """Publish one keyframe: image, camera_info and (when known) pose, all stamped ``stamp``."""
         header = msg_utils.make_header(stamp, info.header.frame_id or 'camera_optical')
         self.pub_image.publish(msg_utils.numpy_to_image(image, 'rgb8', header))
         info.header = header
         self.pub_info.publish(info)
-        self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(pose, stamp_ns=stamp, frame_id=pose_frame))
-        self.get_logger().info(
-            f'keyframe {self.selector.count} at {stamp} ns ({d.reason}: baseline {d.baseline_m:.1f} m, '
-            f'rotation {d.rotation_deg:.1f} deg; {self.frames_seen} frames seen)'
-        )
+        if pose is not None:
+            self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(pose[0], stamp_ns=stamp, frame_id=pose[1]))
+        self.keyframes += 1
+
+    # -- without poses ----------------------------------------------------------------------------
+    def _poseless_frame(self, stamp: int, partial: dict) -> None:
+        image, (info, camera) = partial['image'], partial['camera_info']
+        if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
+            self.bad('camera_info', mismatch)
+            return
+        self.frames_seen += 1
+        self._last_poseless = time.monotonic()
+        self._publish_poseless(self.interval.push(stamp, blur_score(image), (image, info)))
+
+    def _publish_poseless(self, chosen: list[tuple[int, tuple[np.ndarray, CameraInfo]]]) -> None:
+        for stamp, (image, info) in chosen:
+            self._publish(stamp, image, info, None)
+            self.get_logger().info(
+                f'keyframe {self.keyframes} at {stamp} ns (no pose: the sharpest frame of its '
+                f'{self.poseless_interval:g} s window; {self.frames_seen} frames seen)'
+            )
+
+    def _on_timer(self) -> None:
+        now = time.monotonic()
+        if not self.poses_seen and not self.poseless and self._waiting:
+            if now - min(self._waiting.values()) < self.pose_timeout:
+                return
+            self.poseless = True
+            self.get_logger().warning(
+                f'no camera/pose within {self.pose_timeout:g} s: selecting keyframes without poses (the '
+                f'sharpest frame every {self.poseless_interval:g} s), published without keyframes/pose'
+            )
+            for stamp in sorted(self._waiting):
+                partial = self.frames.partial(stamp)
+                if 'image' in partial and 'camera_info' in partial:
+                    self.frames.discard(stamp)
+                    self._poseless_frame(stamp, partial)
+            self._waiting.clear()
+        elif self.poseless and now - self._last_poseless >= self.poseless_interval:
+            self._publish_poseless(self.interval.flush())  # the stream paused or ended
 
 
 def main(args: list[str] | None = None) -> int:
