@@ -13,6 +13,7 @@ import pytest
 
 from ibr_ros.core.mono import PRESETS, OnnxMonoDepth
 from ibr_ros.core.sky import SKY_PRESETS, OnnxSkySegmenter
+from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_mono import evaluate_sample, sparse_reference, spearman
 from ibr_ros.jobs.mono_data import EVAL_SEED_BASE, TRAIN_SEED_BASE, render_samples
 from ibr_ros.models import SHIPPED_MONO_MODEL
@@ -121,6 +122,33 @@ def test_held_out_quality(held_out: list, depth_model: OnnxMonoDepth, sky_model:
     model = np.mean([r['abs_rel_model'] for r in rows])
     assert model < 0.5 * np.mean([r['abs_rel_constant'] for r in rows])
     assert model < 1.5 * np.mean([r['abs_rel_ground_plane'] for r in rows])
+
+
+def test_real_mvs_evaluation_scores_held_out_mvs_pixels(
+    tmp_path: Path, held_out: list, depth_model: OnnxMonoDepth
+) -> None:
+    """``evaluate_real_mvs`` on an npz as tools/real_mvs_data.py writes (synthetic views, GT as MVS)."""
+    from ibr_ros.jobs.eval_mono import evaluate_real_mvs
+
+    depth = np.stack([np.where(np.isfinite(s.depth), s.depth, 0) for s in held_out]).astype(np.float32)
+    depth[:, ::2] = 0  # sparse, like MVS
+    depth[0] = 0  # a view without MVS depth is skipped
+    path = tmp_path / 'real.npz'
+    np.savez(
+        path,
+        rgb=np.stack([s.rgb for s in held_out]),
+        depth=depth,
+        k=np.stack([s.camera.k for s in held_out]),
+        t_wc=np.stack([s.t_wc for s in held_out]),
+    )
+    rows = evaluate_real_mvs(path, depth_model)
+    assert [r['view'] for r in rows] == [1, 2, 3]
+    for r in rows:
+        assert 0 <= r['abs_rel_model'] < r['abs_rel_constant']
+        assert np.isfinite(r['abs_rel_ground_plane'])
+    (tmp_path / 'bad.npz').write_bytes(b'not an npz')
+    with pytest.raises(UserError, match='real-MVS npz'):
+        evaluate_real_mvs(tmp_path / 'bad.npz', depth_model)
 
 
 def test_eval_mono_writes_reports(tmp_path: Path, repo: Path) -> None:

@@ -127,9 +127,11 @@ def build_model() -> torch.nn.Module:
 
 def lr_factor(step: int, steps: int, cycle_steps: int | None = None, decay: float = 0.5) -> float:
     """Learning-rate factor at ``step``: cosine cycles of ``cycle_steps`` (default: one cycle of
-    ``steps``), each starting with a 200-step warm-up and ``decay`` times the previous cycle's peak."""
+    ``steps``; the last cycle ends at ``steps``), each starting with a 200-step warm-up and ``decay``
+    times the previous cycle's peak."""
     c = cycle_steps or steps
     k, s = divmod(min(step, steps - 1), c)
+    c = min(c, steps - k * c)
     return decay**k * min(1.0, (s + 1) / 200) * 0.5 * (1 + math.cos(math.pi * s / c))
 
 
@@ -202,6 +204,31 @@ def augment(rgb: np.ndarray, depth: np.ndarray, rng: np.random.Generator) -> tup
     return np.ascontiguousarray(x.transpose(2, 0, 1)), np.ascontiguousarray(depth)
 
 
+def load_real(path: Path, min_pixels: int = 500) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Real photos with sparse MVS depth (npz of ``tools/real_mvs_data.py``) that have ``min_pixels``."""
+    with np.load(path) as z:
+        pairs = [(r, d) for r, d in zip(z['rgb'], z['depth'], strict=True) if (d > 0).sum() >= min_pixels]
+    if not pairs:
+        raise SystemExit(f'{path}: no view with {min_pixels} MVS pixels')
+    LOG.info('real photos: %d views with MVS depth from %s', len(pairs), path)
+    return pairs
+
+
+def real_sample(
+    rgb: np.ndarray, depth: np.ndarray, size: tuple[int, int], rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """A random crop of the training aspect ratio, resized to ``size`` (depth: nearest, 0 = unknown)."""
+    import cv2
+
+    w, h = size
+    ih, iw = depth.shape
+    cw, ch = min(iw, round(ih * w / h)), min(ih, round(iw * h / w))
+    x0, y0 = int(rng.integers(0, iw - cw + 1)), int(rng.integers(0, ih - ch + 1))
+    r = cv2.resize(rgb[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_AREA)
+    d = cv2.resize(depth[y0 : y0 + ch, x0 : x0 + cw], (w, h), interpolation=cv2.INTER_NEAREST)
+    return r, d
+
+
 def export_onnx(model: torch.nn.Module, path: Path, size: tuple[int, int]) -> None:
     """Export ``model`` to ONNX (opset 17, dynamic H/W) and check it against torch on one input."""
     import torch
@@ -253,6 +280,7 @@ def train(args: argparse.Namespace) -> None:
         rgb_all, depth_all = z['rgb'], z['depth']
     n = len(rgb_all)
     LOG.info('training on %d views of %dx%d', n, args.width, args.height)
+    real = load_real(Path(args.real)) if args.real else []
     model = build_model()
     LOG.info('parameters: %d', sum(p.numel() for p in model.parameters()))
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
@@ -280,6 +308,17 @@ def train(args: argparse.Namespace) -> None:
         gt_inv = torch.where(valid, 1.0 / d.clamp(min=1e-3), torch.zeros_like(d))
         pred, logit = model(x)
         total, ssi, grad, bce = losses(pred, logit, gt_inv, sky, valid)
+        if real and step >= args.real_from_step:  # sparse MVS supervision: depth terms only, sky unknown
+            picks = rng.choice(len(real), args.real_batch, replace=len(real) < args.real_batch)
+            xs, ds = zip(
+                *(augment(*real_sample(*real[i], (args.width, args.height), rng), rng) for i in picks)
+            )
+            rd = torch.from_numpy(np.stack(ds))[:, None]
+            rvalid = rd > 0
+            rpred, rlogit = model(torch.from_numpy(np.stack(xs)))
+            r_inv = torch.where(rvalid, 1.0 / rd.clamp(min=1e-3), torch.zeros_like(rd))
+            _, rssi, rgrad, _ = losses(rpred, rlogit, r_inv, torch.zeros_like(rvalid), rvalid)
+            total = total + args.real_weight * (rssi + 0.5 * rgrad)
         opt.zero_grad()
         total.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
@@ -311,6 +350,8 @@ def train(args: argparse.Namespace) -> None:
     meta = {
         'steps': args.steps,
         'cycle_steps': args.cycle_steps,
+        'real': args.real,
+        'real_from_step': args.real_from_step,
         'batch': args.batch,
         'views': n,
         'size': [args.width, args.height],
@@ -333,6 +374,12 @@ def main(argv: list[str] | None = None) -> int:
         '--cycle-steps', type=int, default=5500, help='cosine cycle length (warm restarts every cycle)'
     )
     p.add_argument('--batch', type=int, default=8)
+    p.add_argument(
+        '--real', help='npz of real photos with MVS depth (tools/real_mvs_data.py): sparse supervision'
+    )
+    p.add_argument('--real-from-step', type=int, default=0, help='use --real from this step on')
+    p.add_argument('--real-batch', type=int, default=2, help='real photos per step')
+    p.add_argument('--real-weight', type=float, default=0.5, help='weight of the real-photo loss')
     p.add_argument('--lr', type=float, default=2e-3)
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--threads', type=int, default=1, help='torch CPU threads')

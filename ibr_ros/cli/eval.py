@@ -31,6 +31,7 @@ def _mono(args: argparse.Namespace) -> int:
     options = MonoEvalOptions(
         scenes=args.scenes, views=args.views, size=(w, h), ref_fraction=args.ref_fraction,
         seed=args.seed, png=args.png, photos_bag=bag,
+        real_mvs=Path(args.real_mvs) if args.real_mvs else None,
     )  # fmt: skip
     with progress_bar('mono eval', unit='view', enabled=args.progress) as progress:
         evaluate_mono(Path(args.model or SHIPPED_MONO_MODEL), Path(args.out), options, progress)
@@ -80,6 +81,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument('--seed', type=int, default=0, help='held-out seed block')
     m.add_argument(
         '--photos-bag', default='bags/brighton_beach', help='bag of real photos for PNGs ("" = none)'
+    )
+    m.add_argument(
+        '--real-mvs', help='npz of real photos with MVS depth (tools/real_mvs_data.py): Abs Rel after the LUT'
     )
     m.add_argument('--png', action=argparse.BooleanOptionalAction, default=True, help='write PNGs')
     m.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bar')

@@ -18,6 +18,11 @@ Synthetic views come from :func:`ibr_ros.jobs.mono_data.render_samples` with sce
 Real photos (no ground truth; qualitative PNGs of input, G and sky): scikit-image's ``camera`` and
 ``rocket`` when scikit-image is installed, and the first images of a bag (e.g. brighton_beach).
 
+Real photos with MVS depth (``real_mvs``: an npz of ``tools/real_mvs_data.py``: SfM-registered
+photos with geometrically filtered MVS depth): per view with at least ``MIN_REAL_PIXELS`` MVS
+pixels, a random half of them is the reference of the LUT remap (and of the ground-plane fit), the
+other half is scored: Abs Rel of the model, the ground-plane prior and a constant G.
+
 Writes ``mono_eval.md``, ``mono_eval.json`` and PNGs into the output folder.
 """
 
@@ -34,6 +39,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.mono import PRESETS, GroundPlanePrior, OnnxMonoDepth, fit_ground_plane, nearness_to_g
 from ibr_ros.core.remap import lut_remap
 from ibr_ros.core.sky import SKY_PRESETS, OnnxSkySegmenter
@@ -41,10 +47,18 @@ from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import write_atomic
 from ibr_ros.jobs.mono_data import EVAL_SEED_BASE, MonoSample, render_samples
 
-__all__ = ['MonoEvalOptions', 'evaluate_mono', 'evaluate_sample', 'sparse_reference', 'spearman']
+__all__ = [
+    'MonoEvalOptions',
+    'evaluate_mono',
+    'evaluate_real_mvs',
+    'evaluate_sample',
+    'sparse_reference',
+    'spearman',
+]
 
 LOG = logging.getLogger(__name__)
 METHODS = ('model', 'ground_plane', 'constant')
+MIN_REAL_PIXELS = 500
 
 
 @dataclass(frozen=True)
@@ -59,6 +73,7 @@ class MonoEvalOptions:
     png: bool = True
     photos_bag: Path | None = None
     photos: int = 3
+    real_mvs: Path | None = None
 
 
 def spearman(a: NDArray[np.floating], b: NDArray[np.floating]) -> float:
@@ -126,6 +141,39 @@ def evaluate_sample(
     row['sky_iou'] = inter / union if union else float('nan')
     maps = {'g': g_model, 'sky': sky, **preds}
     return row, maps
+
+
+def evaluate_real_mvs(path: Path, depth_model: OnnxMonoDepth, seed: int = 0) -> list[dict[str, float]]:
+    """Abs Rel on held-out MVS pixels of real photos (see the module docstring), one row per view."""
+    try:
+        with np.load(path) as z:
+            rgbs, depths, ks, poses = z['rgb'], z['depth'], z['k'], z['t_wc']
+    except (OSError, KeyError, ValueError) as exc:
+        raise UserError(f'{path}: not a real-MVS npz of tools/real_mvs_data.py ({exc})') from exc
+    rows = []
+    for i, (rgb, d, k, t_wc) in enumerate(zip(rgbs, depths, ks, poses, strict=True)):
+        ys, xs = np.nonzero(d > 0)
+        if len(xs) < MIN_REAL_PIXELS:
+            continue
+        pick = np.random.default_rng([seed, i]).permutation(len(xs))
+        ref_i, test_i = pick[: len(xs) // 2], pick[len(xs) // 2 :]
+        ref = np.zeros_like(d, dtype=np.float32)
+        ref[ys[ref_i], xs[ref_i]] = d[ys[ref_i], xs[ref_i]]
+        camera = PinholeCamera(d.shape[1], d.shape[0], k)
+        pts_c = camera.backproject(np.c_[xs[ref_i], ys[ref_i]], ref[ys[ref_i], xs[ref_i]])
+        plane = fit_ground_plane(pts_c @ t_wc[:3, :3].T + t_wc[:3, 3], seed=seed)
+        g_prior = GroundPlanePrior(plane).predict_g(camera, t_wc)
+        preds = {
+            'model': lut_remap(depth_model.predict_g(rgb), ref),
+            'ground_plane': lut_remap(g_prior, ref),
+            'constant': lut_remap(np.full(d.shape, 32768, np.uint16), ref),
+        }
+        gt = d[ys[test_i], xs[test_i]].astype(np.float64)
+        row: dict[str, float] = {'view': i, 'mvs_pixels': len(xs)}
+        for name, pred in preds.items():
+            row[f'abs_rel_{name}'] = float(np.mean(np.abs(pred[ys[test_i], xs[test_i]] - gt) / gt))
+        rows.append(row)
+    return rows
 
 
 def _turbo(x: NDArray, valid: NDArray[np.bool_]) -> NDArray[np.uint8]:
@@ -248,6 +296,21 @@ def _markdown(s: dict) -> str:
             f'{_fmt(r["abs_rel_ground_plane"])} | {_fmt(r["abs_rel_constant"])} | '
             f'{_fmt(r["spearman_model"])} | {_fmt(r["sky_iou"])} |'
         )
+    real = s['real_mvs']
+    if real['views']:
+        rm = real['mean']
+        lines += [
+            '',
+            '## Real photos with MVS depth',
+            '',
+            f'`{real["file"]}`: {len(real["views"])} views; per view half of the MVS pixels are the LUT '
+            'reference, the other half are scored.',
+            '',
+            '| metric | model | ground-plane prior | constant |',
+            '| --- | --- | --- | --- |',
+            f'| Abs Rel (mean over views) | {_fmt(rm["abs_rel_model"])} | '
+            f'{_fmt(rm["abs_rel_ground_plane"])} | {_fmt(rm["abs_rel_constant"])} |',
+        ]
     if s['photos']:
         lines += ['', '## Real photos (qualitative)', '']
         lines += [f'- `{p}`' for p in s['photos']]
@@ -285,19 +348,33 @@ def evaluate_mono(
     median = {k: float(np.nanmedian([r[k] for r in rows])) for k in keys if k.startswith('abs_rel')}
     union = sum(r['sky_union'] for r in rows)
     photos, notes = _photos(o.photos_bag, o.photos)
+    real = evaluate_real_mvs(o.real_mvs, depth_model, o.seed) if o.real_mvs is not None else []
+    if o.real_mvs is not None and not real:
+        notes.append(f'{o.real_mvs}: no view has {MIN_REAL_PIXELS} MVS pixels')
     names = []
     for name, rgb in photos.items():
         _photo_png(out / f'photo_{name}.png', rgb, depth_model, sky_model)
         names.append(f'photo_{name}.png')
     summary = {
         'model': str(model),
-        'options': {**asdict(o), 'photos_bag': str(o.photos_bag) if o.photos_bag else None},
+        'options': {
+            **asdict(o),
+            'photos_bag': str(o.photos_bag) if o.photos_bag else None,
+            'real_mvs': str(o.real_mvs) if o.real_mvs else None,
+        },
         'views': len(rows),
         'mean': mean,
         'median': median,
         'sky_iou_pooled': sum(r['sky_inter'] for r in rows) / union if union else float('nan'),
         'model_beats_prior': sum(r['abs_rel_model'] < r['abs_rel_ground_plane'] for r in rows),
         'per_view': rows,
+        'real_mvs': {
+            'file': str(o.real_mvs) if o.real_mvs else None,
+            'views': real,
+            'mean': {k: _nanmean([r[k] for r in real]) for k in real[0] if k.startswith('abs_rel')}
+            if real
+            else {},
+        },
         'photos': names,
         'notes': notes,
     }
