@@ -23,6 +23,7 @@ SUBCOMMAND_MODULES = (
     'ibr_ros.cli.query',
     'ibr_ros.cli.models',
     'ibr_ros.cli.demo',
+    'ibr_ros.cli.process',
 )
 
 

@@ -1,0 +1,73 @@
+"""``ibr process``: a whole bag through the node pipeline offline (see :mod:`ibr_ros.jobs.process`)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from pathlib import Path
+
+UNITS = {'frames': 'frame', 'keyframes': 'keyframe', 'views': 'view', 'previews': 'image'}
+
+
+def run(args: argparse.Namespace) -> int:
+    from ibr_ros.cli.progress import progress_bar
+    from ibr_ros.jobs.process import ProcessOptions, process_bag
+
+    options = ProcessOptions(
+        image_topic=args.image_topic,
+        info_topic=args.info_topic,
+        pose_topic=args.pose_topic,
+        params=Path(args.params) if args.params else None,
+        views=args.views,
+        width=args.width,
+        height=args.height,
+        hfov_deg=args.hfov_deg,
+        max_keyframes=args.max_keyframes,
+        threads=args.threads,
+        overwrite=args.overwrite,
+    )
+    with contextlib.ExitStack() as stack:
+        bars: dict[str, object] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in bars:
+                stack.close()  # one bar at a time: the previous stage is over
+                bars.clear()
+                bars[stage] = stack.enter_context(
+                    progress_bar(stage, unit=UNITS.get(stage, 'item'), enabled=args.progress)
+                )
+            bars[stage](done, total)  # type: ignore[operator]
+
+        summary = process_bag(Path(args.bag), Path(args.out), options, progress)
+    print((Path(args.out) / 'summary.md').read_text(), end='')
+    return 0 if summary['refined'] else 1
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'process',
+        help='process a whole bag offline with the node pipeline into an output bag (keyframes, '
+        'refined depth, novel views), PNG previews and a summary',
+        description='Keyframe selection, MVS + depth refinement and novel views along the keyframe path, '
+        'with the parameters of config/<node>.yaml (frame_subsampler, depth_refiner, view_renderer), '
+        'synchronously in bag-time order: the same input gives the same output.',
+    )
+    p.add_argument('bag', help='input bag: ROS 2 bag folder, .mcap, .db3 or ROS 1 .bag')
+    p.add_argument('--out', required=True, help='output folder (bag/, previews/, summary.json, summary.md)')
+    p.add_argument('--image-topic', help='camera image topic, Image or CompressedImage (default: detected)')
+    p.add_argument('--info-topic', help='CameraInfo topic (default: detected)')
+    p.add_argument('--pose-topic', help='PoseStamped or Odometry topic (default: detected)')
+    p.add_argument(
+        '--params', metavar='FILE', help='ROS 2 params file overriding config/<node>.yaml of the three nodes'
+    )
+    p.add_argument('--views', type=int, default=16, help='novel views along the keyframe path (default: 16)')
+    p.add_argument(
+        '--width', type=int, help="novel view width (px); default: view_renderer's (0 = keyframe's)"
+    )
+    p.add_argument('--height', type=int, help='novel view height (px)')
+    p.add_argument('--hfov-deg', type=float, help='novel view horizontal field of view (deg)')
+    p.add_argument('--max-keyframes', type=int, help='stop reading the bag after this many keyframes')
+    p.add_argument('--threads', type=int, help='compute threads (default: all cores)')
+    p.add_argument('--overwrite', action='store_true', help='replace an existing OUT/bag')
+    p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bars')
+    p.set_defaults(func=run)
