@@ -3,7 +3,8 @@
 Checks: the shipped bag's first 3 s arrive complete, byte-identical and in order with /clock at the
 bag's time; a small bag of raw Image (rgb8), CompressedImage, CameraInfo and PoseStamped is paced at
 rate 1, honours a remap and drives a ``use_sim_time`` node's clock; ``loop`` republishes; a missing
-bag is one error line and exit code 2.
+bag is one error line and exit code 2; undecodable payloads are classified by reason, and a looping
+player over nothing but undecodable messages stops (exit 2) instead of spinning.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +23,7 @@ import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -272,3 +274,38 @@ def test_missing_bag_is_one_error_line_and_exit_2(ros_env, tmp_path):
     assert len(lines) == 1, lines
     assert 'ERROR' in lines[0]
     assert str(missing) in lines[0]
+
+
+def test_undecodable_payloads_are_classified_and_valid_ones_pass():
+    from ibr_ros.nodes.bag_player import decoder, undecodable
+
+    header = msg_utils.make_header(SMALL_START_NS, 'camera_optical')
+    img = msg_utils.numpy_to_image(_frame(0), 'rgb8', header)
+    jpeg = msg_utils.numpy_to_compressed_image(_frame(0), 'jpeg', encoding='rgb8', header=header)
+    for msg in (img, jpeg):
+        cls, raw = type(msg), serialize_message(msg)
+        msgtype = msg_utils.flavor.message_typename(msg)
+        for decode in (decoder(msgtype, cls), partial(deserialize_message, message_type=cls)):
+            assert undecodable(raw, decode) is None
+            assert undecodable(b'', decode) == ('empty', 'payload of 0 bytes')
+            assert undecodable(raw[:3], decode)[0] == 'encapsulation'
+            reason, error = undecodable(b'\x10\x01' + raw[2:], decode)
+            assert (reason, '10 01' in error) == ('encapsulation', True)
+            assert undecodable(raw[: len(raw) - 8], decode)[0] == 'corrupt'
+            huge = raw[:12] + (2**31).to_bytes(4, 'little') + raw[16:]  # header.frame_id length
+            assert undecodable(huge, decode)[0] == 'corrupt'
+
+
+def test_loop_over_undecodable_messages_only_stops_with_exit_2(ros_env, tmp_path):
+    path = tmp_path / 'garbage'
+    with BagWriter(path) as bag:
+        for i in range(3):
+            bag.write_raw(
+                '/camera/pose', 'geometry_msgs/msg/PoseStamped', b'\x00\x01\x00\x00', SMALL_START_NS + i
+            )
+    log = tmp_path / 'player.log'
+    proc = _player(ros_env, log, f'bag:={path}', 'rate:=0.0', 'loop:=true', 'publish_clock:=false')
+    out = _finish(proc, log)
+    assert proc.returncode == 2, out
+    assert 'pass 1 done: 3 undecodable messages skipped: /camera/pose 3 (corrupt 3)' in out, out
+    assert 'published no message; not looping' in out, out

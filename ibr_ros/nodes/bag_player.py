@@ -6,6 +6,15 @@ bytes unchanged on the bag's topic (after ``remap``), reliable with ``qos_depth`
 effort and reliable subscribers alike). Topics whose type has no Python message class installed, or
 whose data is not Jazzy CDR, are skipped with a warning.
 
+Every message is checked before it goes out: a payload that does not decode as its topic's type
+(empty, no CDR header, truncated, lengths past its end, ...) is never published (a 0-byte payload
+would never be acknowledged and stall the topic); it is counted by reason (``empty``,
+``encapsulation``, ``corrupt``), logged (throttled, with topic, bag time and the decode error) and
+summed up when the bag is done. Types ROS 2 Jazzy knows are decoded with the rosbags CDR reader (no
+copy of array data: ~0.04 ms for a 640x360 rgb8 Image), others with rclpy. The rosbags reader is
+stricter than Fast CDR on three points, also skipped: strings without terminator or not UTF-8, and
+more than 3 bytes after the message.
+
 Messages are paced on the wall clock: bag time since ``start_offset``, divided by ``rate``
 (0 = as fast as possible). ``/clock`` (``rosgraph_msgs/Clock``) carries the playback's bag time at
 ``clock_rate_hz``, never ahead of the next message, so nodes can run with ``use_sim_time``. With
@@ -23,8 +32,10 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from functools import partial
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
@@ -34,16 +45,20 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
+from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
 import msg_utils
 from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, open_bag
 from ibr_ros.errors import UserError
-from ibr_ros.nodes.common import declare, reliable_qos
+from ibr_ros.nodes.common import BadInput, declare, reliable_qos
 from msg_utils.flavor import message_class
 
 EXIT_BAD_INPUT = 2
+
+#: Encapsulation headers of plain CDR (big, little endian): what ROS 2 Jazzy publishes and records.
+CDR_HEADERS = (b'\x00\x00', b'\x00\x01')
 
 
 @dataclass
@@ -52,8 +67,32 @@ class _Out:
 
     name: str
     publisher: Publisher
+    decode: Callable[[bytes], object]  # raises on a payload that is not a message of the topic's type
     count: int = 0
     unacked: int = 0  # upper bound of the messages in the publisher's history
+    skipped: Counter[str] = field(default_factory=Counter)  # undecodable payloads by reason
+
+
+def decoder(msgtype: str, cls: type) -> Callable[[bytes], object]:
+    """Deserialiser of ``msgtype`` CDR: rosbags' Jazzy typestore (fast, no array copies), else rclpy."""
+    if msgtype in TYPESTORE.types:
+        return partial(TYPESTORE.deserialize_cdr, typename=msgtype)
+    return partial(deserialize_message, message_type=cls)
+
+
+def undecodable(raw: bytes, decode: Callable[[bytes], object]) -> tuple[str, str] | None:
+    """``(reason, error)`` when ``raw`` is not a CDR message that ``decode`` accepts; None when it is."""
+    if not raw:
+        return 'empty', 'payload of 0 bytes'
+    if len(raw) < 4:
+        return 'encapsulation', f'{len(raw)} bytes, shorter than the 4-byte CDR encapsulation header'
+    if (head := bytes(raw[:2])) not in CDR_HEADERS:
+        return 'encapsulation', f'{len(raw)} bytes: encapsulation {head.hex(" ")} is not CDR (00 00 or 00 01)'
+    try:
+        decode(raw)
+    except Exception as exc:  # rosbags SerdeError, rclpy RMWError, ...
+        return 'corrupt', f'{len(raw)} bytes: {exc or type(exc).__name__}'
+    return None
 
 
 def parse_remaps(pairs: list[str]) -> dict[str, str]:
@@ -102,6 +141,7 @@ class BagPlayer(Node):
         if unknown := [t for t in remap if t not in wanted]:
             self.get_logger().warning(f'remap of topics that are not played: {", ".join(unknown)}')
         self.outs: dict[str, _Out] = {}
+        self.bad = BadInput(self)
         qos = reliable_qos(self.depth)
         for topic in wanted:
             info = available[topic]
@@ -111,7 +151,7 @@ class BagPlayer(Node):
                 continue
             cls = message_class(info.msgtype)
             name = remap.get(topic, topic)
-            self.outs[topic] = _Out(name, self.create_publisher(cls, name, qos))
+            self.outs[topic] = _Out(name, self.create_publisher(cls, name, qos), decoder(info.msgtype, cls))
         if not self.outs:
             raise UserError(f'{self.bag_path}: none of the topics can be played')
         self.clock_pub = (
@@ -168,10 +208,12 @@ class BagPlayer(Node):
             self._wait_for_subscribers()
             passes = 0
             while not self.stopping.is_set():
-                self._play_once(passes)
+                published = self._play_once(passes)
                 passes += 1
                 if not self.loop:
                     break
+                if not published and not self.stopping.is_set():  # looping would spin on nothing
+                    raise UserError(f'{self.bag_path}: pass {passes} published no message; not looping')
             if not self.stopping.is_set():
                 self._wait_acked()
         except Exception as exc:  # a shutdown while publishing raises; anything else is logged
@@ -203,22 +245,29 @@ class BagPlayer(Node):
     def _messages(self) -> Iterator[BagMessage]:
         return self.bag.messages(list(self.outs), start_ns=self.first_ns, end_ns=self.stop_ns)
 
-    def _play_once(self, passes: int) -> None:
+    def _play_once(self, passes: int) -> int:
+        """Play the bag (from ``start_offset`` for ``duration``) once; the number of messages published."""
         start_wall = time.monotonic()
         last_progress = start_wall
         span_ns = max(1, min(self.stop_ns - 1, self.bag.end_ns) - self.first_ns)
         count = last_ns = 0
+        n_skipped = 0
+        skipped_before = {t: o.skipped.copy() for t, o in self.outs.items()}
         self._clock_ns = -1  # a new pass may go back in time
         self._publish_clock(self.first_ns, force=True)
         for msg in self._messages():
+            out = self.outs[msg.topic]
+            if problem := undecodable(msg.rawdata, out.decode):
+                self._skip(out, msg, *problem)
+                n_skipped += 1
+                continue
             if self.rate > 0:
                 due = start_wall + (msg.timestamp_ns - self.first_ns) / 1e9 / self.rate
                 if not self._sleep_until(due, start_wall, msg.timestamp_ns):
-                    return
+                    return count
             elif self.stopping.is_set():
-                return
+                return count
             self._publish_clock(msg.timestamp_ns)
-            out = self.outs[msg.topic]
             if self.rate == 0:
                 self._flow_control(out)
             out.publisher.publish(msg.rawdata)
@@ -232,9 +281,10 @@ class BagPlayer(Node):
                 self.get_logger().info(
                     f'{count} messages, bag time {(msg.timestamp_ns - self.bag.start_ns) / 1e9:.2f} s '
                     f'({100.0 * (msg.timestamp_ns - self.first_ns) / span_ns:.0f}%)'
+                    + (f', {n_skipped} undecodable skipped' if n_skipped else '')
                 )
         if self.stopping.is_set():
-            return
+            return count
         if count:
             self._publish_clock(last_ns, force=True)  # the last message's time, whatever the ticks
         wall = time.monotonic() - start_wall
@@ -242,6 +292,27 @@ class BagPlayer(Node):
         self.get_logger().info(
             f'{what}: {count} messages in {wall:.2f} s ({count / max(wall, 1e-9):.0f} msg/s), '
             + ', '.join(f'{o.name} {o.count}' for o in self.outs.values())
+        )
+        if n_skipped:
+            per_topic = {o.name: o.skipped - skipped_before[t] for t, o in self.outs.items()}
+            self.get_logger().warning(
+                f'{what}: {n_skipped} undecodable messages skipped: '
+                + ', '.join(
+                    f'{name} {c.total()} ({", ".join(f"{r} {n}" for r, n in sorted(c.items()))})'
+                    for name, c in per_topic.items()
+                    if c
+                )
+            )
+        return count
+
+    def _skip(self, out: _Out, msg: BagMessage, reason: str, error: str) -> None:
+        """Count and log (throttled per reason) an undecodable message instead of publishing it."""
+        out.skipped[reason] += 1
+        bag_s = (msg.timestamp_ns - self.bag.start_ns) / 1e9
+        self.bad(
+            reason,
+            f'{msg.topic} at bag time {msg.timestamp_ns} ns (+{bag_s:.3f} s): not a {msg.msgtype}, '
+            f'skipped: {error}',
         )
 
     def _flow_control(self, out: _Out) -> None:
