@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 import rclpy
 from geometry_msgs.msg import PoseStamped
+from node_harness import image_msg, in_process, info_msg, shipped_frames, spin_until
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -37,13 +37,6 @@ def _frames(repo, seconds: float = 12.0, every: int = 2):
     stamps = sorted(by_stamp)
     stamps = [s for s in stamps if s - stamps[0] < seconds * 1e9][::every]
     return [(s, by_stamp[s]) for s in stamps]
-
-
-def _wait(node, cond, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return cond()
 
 
 @pytest.fixture
@@ -74,7 +67,7 @@ def test_keyframes_from_the_shipped_bag(repo, subsampler):
         node.create_subscription(CameraInfo, 'keyframes/camera_info', got['info'].append, LATCHED)
         node.create_subscription(PoseStamped, 'keyframes/pose', got['pose'].append, LATCHED)
         pubs = (pub_img, pub_info, pub_pose)
-        assert _wait(node, lambda: all(p.get_subscription_count() > 0 for p in pubs), 30), (
+        assert spin_until(node, lambda: all(p.get_subscription_count() > 0 for p in pubs), 30), (
             'node never subscribed'
         )
 
@@ -100,8 +93,8 @@ def test_keyframes_from_the_shipped_bag(repo, subsampler):
             pub_pose.publish(pose)
             pub_img.publish(img)
             rclpy.spin_once(node, timeout_sec=0.03)
-        assert _wait(node, lambda: len(got['pose']) >= 3 and len(got['pose']) == len(got['image']), 30)
-        _wait(node, lambda: False, 1.0)  # let the last keyframe's three messages arrive
+        assert spin_until(node, lambda: len(got['pose']) >= 3 and len(got['pose']) == len(got['image']), 30)
+        spin_until(node, lambda: False, 1.0)  # let the last keyframe's three messages arrive
     finally:
         rclpy.try_shutdown()
     assert subsampler.poll() is None, 'node died'
@@ -121,77 +114,41 @@ def test_keyframes_from_the_shipped_bag(repo, subsampler):
 
 def test_keyframes_without_poses(repo):
     """No camera/pose: after ``pose_timeout_s`` the sharpest frame of every 1 s window, no pose topic."""
-    import contextlib
-    import threading
-
     import cv2
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.serialization import deserialize_message
 
     from ibr_ros.nodes.frame_subsampler import FrameSubsampler
 
-    size = (320, 180)
-    frames = []
-    for stamp, raw in _frames(repo, seconds=6.0, every=2):  # 30 frames, 0.2 s apart
-        rgb = msg_utils.compressed_image_to_numpy(deserialize_message(raw[TOPICS['image']], CompressedImage))
-        info = deserialize_message(raw[TOPICS['camera_info']], CameraInfo)
-        camera = msg_utils.camera_info_to_pinhole(info).scaled(size[0] / info.width, size[1] / info.height)
-        frames.append((stamp, cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), camera))
+    # The bag's first 6 s, every 2nd frame: 30 frames, 0.2 s apart.
+    frames = [(f['stamp'], f['rgb'], f['camera']) for f in shipped_frames(repo, range(0, 60, 2), (320, 180))]
     blurred = {frames[k][0] for k in (3, 12, 13, 14)}  # never keyframes
     t0 = frames[0][0]
-    rclpy.init(args=['--ros-args', '-p', 'pose_timeout_s:=0.5', '-p', 'poseless_interval_s:=1.0'])
-    executor = SingleThreadedExecutor()
-    node = feeder = thread = None
-    try:
-        node = FrameSubsampler()
-        feeder = rclpy.create_node('poseless_feeder')
-        pub_img = feeder.create_publisher(Image, 'camera/image_raw', PUB_QOS)
-        pub_info = feeder.create_publisher(CameraInfo, 'camera/camera_info', PUB_QOS)
-        got: dict[str, list] = {'image': [], 'info': [], 'pose': []}
-        feeder.create_subscription(Image, 'keyframes/image', got['image'].append, LATCHED)
-        feeder.create_subscription(CameraInfo, 'keyframes/camera_info', got['info'].append, LATCHED)
-        feeder.create_subscription(PoseStamped, 'keyframes/pose', got['pose'].append, LATCHED)
-        executor.add_node(node)
-        executor.add_node(feeder)
-
-        def spin() -> None:
-            with contextlib.suppress(ExternalShutdownException):
-                executor.spin()
-
-        thread = threading.Thread(target=spin, daemon=True)
-        thread.start()
-
-        def wait(cond, timeout: float) -> bool:
-            deadline = time.monotonic() + timeout
-            while not cond() and time.monotonic() < deadline:
-                time.sleep(0.02)
-            return cond()
-
-        assert wait(lambda: pub_img.get_subscription_count() and pub_info.get_subscription_count(), 30)
-        assert wait(lambda: node.pub_pose.get_subscription_count() > 0, 30)
+    params = {'pose_timeout_s': 0.5, 'poseless_interval_s': 1.0}
+    with in_process(FrameSubsampler, None, 'poseless_feeder', **params) as h:
+        node = h.node
+        got = {
+            'image': h.collect(Image, 'keyframes/image', LATCHED),
+            'info': h.collect(CameraInfo, 'keyframes/camera_info', LATCHED),
+            'pose': h.collect(PoseStamped, 'keyframes/pose', LATCHED),
+        }
+        pubs = h.publishers({
+            'image': (Image, 'camera/image_raw', PUB_QOS),
+            'info': (CameraInfo, 'camera/camera_info', PUB_QOS),
+        })  # fmt: skip
+        assert h.wait(lambda: node.pub_pose.get_subscription_count() > 0, 30)
         for k, (stamp, rgb, camera) in enumerate(frames):
             if stamp in blurred:
                 rgb = cv2.GaussianBlur(rgb, (0, 0), 3.0)
-            header = msg_utils.make_header(stamp, 'camera_optical')
-            pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
-            pub_img.publish(msg_utils.numpy_to_image(rgb, 'rgb8', header))
+            pubs['info'].publish(info_msg(camera, stamp))
+            pubs['image'].publish(image_msg(rgb, stamp))
             # Paced: the next frame goes out once the node has this one (pending or processed).
-            assert wait(
+            assert h.wait(
                 lambda s=stamp, n=k + 1: 'image' in node.frames.partial(s) or node.frames_seen >= n, 10
             )
         # Six 1 s windows: five closed by the next window's frames, the last after 1 s without frames.
-        assert wait(lambda: len(got['image']) == 6 and len(got['info']) == 6, 20), node.interval.rejected
+        assert h.wait(lambda: len(got['image']) == 6 and len(got['info']) == 6, 20), node.interval.rejected
         assert node.poseless
         assert node.frames_seen == len(frames)
         bad = dict(node.bad.counts)
-    finally:
-        executor.shutdown(timeout_sec=5)
-        for n in (node, feeder):
-            if n is not None:
-                n.destroy_node()
-        rclpy.try_shutdown()
-        if thread is not None:
-            thread.join(timeout=10)
     assert bad == {}
     assert got['pose'] == []
     stamps = [msg_utils.stamp_to_ns(m.header.stamp) for m in got['image']]

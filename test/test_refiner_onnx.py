@@ -8,26 +8,23 @@ parameters must stop the node at start-up with one readable error line naming th
 
 from __future__ import annotations
 
-import contextlib
-import threading
-import time
-
-import cv2
 import numpy as np
 import pytest
-import rclpy
-from geometry_msgs.msg import PoseStamped
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from sensor_msgs.msg import CameraInfo, Image
+from node_harness import (
+    assert_refuses_to_start,
+    in_process,
+    keyframe_topics,
+    publish_frame,
+    shipped_frames,
+)
+from sensor_msgs.msg import Image
 
 import msg_utils
-from ibr_ros.bag import open_bag
 from ibr_ros.core.mono import PRESETS
 from ibr_ros.core.sky import SKY_PRESETS
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.synth_bag import TOPICS
 from ibr_ros.models import SHIPPED_MONO_MODEL, mono_spec, sky_spec
-from ibr_ros.nodes.common import EXIT_BAD_CONFIG, model_qos
+from ibr_ros.nodes.common import model_qos
 
 FRAMES = (48, 72, 96)  # multiples of 3: ground-truth depth is stored
 SIZE = (320, 180)
@@ -36,27 +33,7 @@ SIZE = (320, 180)
 @pytest.fixture(scope='module')
 def keyframes(repo) -> list[dict]:
     """stamp, rgb, camera, pose and ground-truth depth of FRAMES, resized to SIZE."""
-    with open_bag(repo / 'bags' / 'synth_orbit_s0') as reader:
-        stamps = [m.timestamp_ns for m in reader.messages([TOPICS['pose']])]
-        index = {stamps[i]: k for k, i in enumerate(FRAMES)}
-        out: list[dict] = [{'stamp': stamps[i]} for i in FRAMES]
-        for m in reader.messages([TOPICS[k] for k in ('image', 'camera_info', 'pose', 'depth')]):
-            if (k := index.get(m.timestamp_ns)) is None:
-                continue
-            if m.topic == TOPICS['image']:
-                out[k]['rgb'] = msg_utils.compressed_image_to_numpy(m.msg)
-            elif m.topic == TOPICS['camera_info']:
-                out[k]['camera'] = msg_utils.camera_info_to_pinhole(m.msg)
-            elif m.topic == TOPICS['pose']:
-                out[k]['pose'] = msg_utils.pose_stamped_to_matrix(m.msg)
-            else:
-                out[k]['gt'] = msg_utils.depth_image_to_m(m.msg).copy()
-    for f in out:
-        cam = f['camera']
-        f['rgb'] = np.ascontiguousarray(cv2.resize(f['rgb'], SIZE, interpolation=cv2.INTER_AREA))
-        f['camera'] = cam.scaled(SIZE[0] / cam.width, SIZE[1] / cam.height)
-        f['gt'] = cv2.resize(f['gt'], SIZE, interpolation=cv2.INTER_NEAREST)
-    return out
+    return shipped_frames(repo, FRAMES, SIZE)
 
 
 def test_model_parameters_resolve_names_paths_and_presets(tmp_path):
@@ -90,64 +67,26 @@ def test_model_parameters_resolve_names_paths_and_presets(tmp_path):
 def test_bad_model_parameters_stop_the_node_with_one_line(params, error, capfd):
     from ibr_ros.nodes.depth_refiner import main
 
-    argv = ['depth_refiner', '--ros-args']
-    for prm in params:
-        argv += ['-p', prm]
-    assert main(argv) == EXIT_BAD_CONFIG
-    err = capfd.readouterr().err
-    assert f'[depth_refiner]: cannot start: {error}' in err
-    assert 'Traceback' not in err
+    assert_refuses_to_start(main, 'depth_refiner', params, error, capfd)
 
 
 def test_refiner_node_with_onnx_mono_and_sky(repo, keyframes):
     from ibr_ros.nodes.depth_refiner import DepthRefinerNode
 
-    args = ['--ros-args', '--params-file', str(repo / 'config' / 'depth_refiner.yaml')]
-    for prm in ('mono:=onnx', 'mono_model:=ibr_mono', 'sky:=onnx', 'sky_model:=ibr_mono'):
-        args += ['-p', prm]
-    rclpy.init(args=args)
-    executor = SingleThreadedExecutor()
-    node = feeder = thread = None
-    try:
-        node = DepthRefinerNode()
+    config = repo / 'config' / 'depth_refiner.yaml'
+    onnx = {'mono': 'onnx', 'mono_model': 'ibr_mono', 'sky': 'onnx', 'sky_model': 'ibr_mono'}
+    with in_process(DepthRefinerNode, config, 'onnx_refiner_feeder', **onnx) as h:
+        node = h.node
         cfg = node.refiner.config
         assert (cfg.mono, cfg.sky) == ('onnx', 'onnx')
         assert cfg.mono_model.path == cfg.sky_model.path == SHIPPED_MONO_MODEL
-        feeder = rclpy.create_node('onnx_refiner_feeder')
-        depths: list[Image] = []
-        feeder.create_subscription(Image, 'keyframes/depth', depths.append, model_qos())
-        pubs = [feeder.create_publisher(t, f'keyframes/{n}', model_qos()) for t, n in
-                ((Image, 'image'), (CameraInfo, 'camera_info'), (PoseStamped, 'pose'))]  # fmt: skip
-        executor.add_node(node)
-        executor.add_node(feeder)
-
-        def spin() -> None:
-            with contextlib.suppress(ExternalShutdownException):
-                executor.spin()
-
-        thread = threading.Thread(target=spin, daemon=True)
-        thread.start()
-        deadline = time.monotonic() + 30
-        while not all(p.get_subscription_count() for p in pubs) and time.monotonic() < deadline:
-            time.sleep(0.05)
+        depths = h.collect(Image, 'keyframes/depth', model_qos())
+        pubs = h.publishers(keyframe_topics(model_qos()))
         for f in keyframes:
-            header = msg_utils.make_header(f['stamp'], 'camera_optical')
-            pubs[0].publish(msg_utils.numpy_to_image(f['rgb'], 'rgb8', header))
-            pubs[1].publish(msg_utils.pinhole_to_camera_info(f['camera'], header))
-            pubs[2].publish(msg_utils.matrix_to_pose_stamped(f['pose'], stamp_ns=f['stamp'], frame_id='map'))
-        deadline = time.monotonic() + 120
+            publish_frame(pubs, f)
         refined = lambda: {msg_utils.stamp_to_ns(m.header.stamp) for m in depths}  # noqa: E731
-        while len(refined()) < len(keyframes) and time.monotonic() < deadline:
-            time.sleep(0.1)
+        h.wait(lambda: len(refined()) >= len(keyframes), 120)
         bad = dict(node.bad.counts)
-    finally:
-        executor.shutdown(timeout_sec=5)
-        for n in (node, feeder):
-            if n is not None:
-                n.destroy_node()
-        rclpy.try_shutdown()
-        if thread is not None:
-            thread.join(timeout=10)
     assert bad == {}
     by_stamp = {msg_utils.stamp_to_ns(m.header.stamp): m for m in depths}
     assert set(by_stamp) == {f['stamp'] for f in keyframes}

@@ -28,15 +28,21 @@ import numpy as np
 import pytest
 import rclpy
 from geometry_msgs.msg import PoseStamped
-from sensor_msgs.msg import CameraInfo, Image
+from node_harness import (
+    create_publishers,
+    keyframe_topics,
+    pose_msg,
+    publish_frame,
+    shipped_frames,
+    spin_until,
+)
+from sensor_msgs.msg import Image
 
 import msg_utils
-from ibr_ros.bag import open_bag
 from ibr_ros.core.geometry import R_BODY_FROM_OPTICAL, matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.core.rephoto import score
 from ibr_ros.core.schedule import axis_scene_depth, shard_of
-from ibr_ros.jobs.synth_bag import TOPICS
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
 KEYFRAMES = tuple(range(0, 192, 24))  # 8 frames, all multiples of 3 (stored GT depth)
@@ -84,34 +90,10 @@ def _node(repo: Path, name: str, env: dict[str, str], *params: str, remap: tuple
 
 
 @pytest.fixture(scope='module')
-def bag(repo):
-    """Per frame index: stamp, rgb, camera_info, pose (4x4), and GT depth where stored."""
-    wanted = {*KEYFRAMES, HELD_OUT}
-    with open_bag(repo / 'bags' / 'synth_orbit_s0') as reader:
-        stamps = [m.timestamp_ns for m in reader.messages([TOPICS['pose']])]
-        index = {s: i for i, s in enumerate(stamps) if i in wanted}
-        out: dict[int, dict] = {i: {'stamp': stamps[i]} for i in wanted}
-        topics = [TOPICS[k] for k in ('image', 'camera_info', 'pose', 'depth')]
-        for m in reader.messages(topics):
-            if m.timestamp_ns not in index:
-                continue
-            f = out[index[m.timestamp_ns]]
-            if m.topic == TOPICS['image']:
-                f['rgb'] = np.ascontiguousarray(msg_utils.compressed_image_to_numpy(m.msg))
-            elif m.topic == TOPICS['camera_info']:
-                f['camera'] = msg_utils.camera_info_to_pinhole(m.msg)
-            elif m.topic == TOPICS['pose']:
-                f['pose'] = msg_utils.pose_stamped_to_matrix(m.msg)
-            else:
-                f['gt'] = msg_utils.depth_image_to_m(m.msg).copy()
-    return out
-
-
-def _wait(node, cond, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return cond()
+def bag(repo) -> dict[int, dict]:
+    """Per frame index: stamp, rgb, camera, pose (4x4), and GT depth where stored."""
+    wanted = sorted({*KEYFRAMES, HELD_OUT})
+    return dict(zip(wanted, shipped_frames(repo, wanted)))
 
 
 def _ypr_deg(r_wc: np.ndarray) -> tuple[float, float, float]:
@@ -182,9 +164,7 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
     try:
         node = rclpy.create_node('refiner_renderer_test')
         qos = model_qos()
-        pub_img = node.create_publisher(Image, 'keyframes/image', qos)
-        pub_info = node.create_publisher(CameraInfo, 'keyframes/camera_info', qos)
-        pub_pose = node.create_publisher(PoseStamped, 'keyframes/pose', qos)
+        pubs = create_publishers(node, keyframe_topics(qos))
         pub_query = node.create_publisher(PoseStamped, 'novel_view/query', reliable_qos())
         pub_late = node.create_publisher(PoseStamped, 'late/query', reliable_qos())
         depths: list[Image] = []
@@ -194,40 +174,39 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
         node.create_subscription(Image, 'novel_view/image', replies.append, reliable_qos())
         node.create_subscription(Image, 'late/image', late_replies.append, reliable_qos())
         # Each refiner and the renderer subscribe to the three keyframe topics.
-        pubs = (pub_img, pub_info, pub_pose)
-        assert _wait(node, lambda: all(p.get_subscription_count() >= 3 for p in pubs), 60), [
+        assert spin_until(node, lambda: all(p.get_subscription_count() >= 3 for p in pubs.values()), 60), [
             p.text for p in procs
         ]
 
         stamp_of = {bag[i]['stamp']: i for i in KEYFRAMES}
         for i in KEYFRAMES:
             f = bag[i]
-            header = msg_utils.make_header(f['stamp'], 'camera_optical')
             if i == 48:  # malformed companions with their own stamps: counted and skipped
                 bad = msg_utils.numpy_to_image(f['rgb'], 'rgb8', msg_utils.make_header(f['stamp'] + 1))
                 bad.step = 5
-                pub_img.publish(bad)
-                nan = msg_utils.matrix_to_pose_stamped(f['pose'], stamp_ns=f['stamp'] + 1, frame_id='map')
+                pubs['image'].publish(bad)
+                nan = pose_msg(f['pose'], f['stamp'] + 1)
                 nan.pose.position.x = float('nan')
-                pub_pose.publish(nan)
-            pub_img.publish(msg_utils.numpy_to_image(f['rgb'], 'rgb8', header))
-            pub_info.publish(msg_utils.pinhole_to_camera_info(f['camera'], header))
-            pub_pose.publish(msg_utils.matrix_to_pose_stamped(f['pose'], stamp_ns=f['stamp'], frame_id='map'))
+                pubs['pose'].publish(nan)
+            publish_frame(pubs, f)
         t_pub = time.monotonic()
 
         def stamps() -> list[int]:
             return [msg_utils.stamp_to_ns(m.header.stamp) for m in depths]
 
-        assert _wait(node, lambda: set(stamps()) == set(stamp_of), 100), (stamps(), [p.text for p in procs])
+        assert spin_until(node, lambda: set(stamps()) == set(stamp_of), 100), (
+            stamps(),
+            [p.text for p in procs],
+        )
         t_depth = time.monotonic() - t_pub
-        _wait(node, lambda: False, 0.5)  # a grace period in which a duplicate would show up
+        spin_until(node, lambda: False, 0.5)  # a grace period in which a duplicate would show up
         assert sorted(stamps()) == sorted(stamp_of), 'every keyframe refined exactly once'
 
         # Each worker refined its own shard, and only that (its log line follows the publication).
         def refined_by() -> list[set[int]]:
             return [set(map(int, re.findall(r'refined keyframe (\d+) ns', p.text))) for p in procs[:2]]
 
-        assert _wait(node, lambda: set.union(*refined_by()) == set(stamp_of), 10)
+        assert spin_until(node, lambda: set.union(*refined_by()) == set(stamp_of), 10)
         refined = refined_by()
         assert refined[0] | refined[1] == set(stamp_of)
         assert not refined[0] & refined[1]
@@ -250,17 +229,17 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
 
         # The early renderer has the whole model: query the held-out pose.
         want = {f'added keyframe {s} ns' for s in stamp_of}
-        assert _wait(node, lambda: all(w in procs[2].text for w in want), 30), procs[2].text
+        assert spin_until(node, lambda: all(w in procs[2].text for w in want), 30), procs[2].text
         gt_rgb = bag[HELD_OUT]['rgb']
 
         def ask(pub, box: list[Image], t_wc: np.ndarray, stamp: int, timeout: float = 20.0):
             t0 = time.perf_counter()
-            pub.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id='map'))
+            pub.publish(pose_msg(t_wc, stamp))
             hit = lambda: next((m for m in box if msg_utils.stamp_to_ns(m.header.stamp) == stamp), None)  # noqa: E731
-            _wait(node, lambda: hit() is not None, timeout)
+            spin_until(node, lambda: hit() is not None, timeout)
             return hit(), time.perf_counter() - t0
 
-        assert _wait(node, lambda: pub_query.get_subscription_count() > 0, 10)
+        assert spin_until(node, lambda: pub_query.get_subscription_count() > 0, 10)
         reply, latency = ask(pub_query, replies, bag[HELD_OUT]['pose'], 1_000)
         assert reply is not None, procs[2].text
         assert msg_utils.stamp_to_ns(reply.header.stamp) == 1_000
@@ -271,7 +250,7 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
 
         # Unanswerable queries: no reply, a logged reason, the node carries on.
         far = bag[HELD_OUT]['pose'] @ matrix_from_rt(np.eye(3), [0.0, 0.0, -5000.0])
-        nan_q = msg_utils.matrix_to_pose_stamped(bag[HELD_OUT]['pose'], stamp_ns=2_000, frame_id='map')
+        nan_q = pose_msg(bag[HELD_OUT]['pose'], 2_000)
         nan_q.pose.orientation.w = float('nan')
         pub_query.publish(nan_q)
         assert ask(pub_query, replies, far, 2_001, timeout=2.0)[0] is None
@@ -285,8 +264,8 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
             'novel_view/camera_info:=late/info',
         )
         late = _node(repo, 'view_renderer', ros_env, remap=remap)
-        assert _wait(node, lambda: all(w in late.text for w in want), 60), late.text
-        assert _wait(node, lambda: pub_late.get_subscription_count() > 0, 10)
+        assert spin_until(node, lambda: all(w in late.text for w in want), 60), late.text
+        assert spin_until(node, lambda: pub_late.get_subscription_count() > 0, 10)
         late_reply, _ = ask(pub_late, late_replies, bag[HELD_OUT]['pose'], 3_000)
         assert late_reply is not None, late.text
         s_late = score(gt_rgb, np.array(msg_utils.image_to_rgb(late_reply)))
@@ -354,8 +333,7 @@ def test_refiner_flush_refine_again_debug_and_poseless_frames(repo, bag, ros_env
     try:
         node = rclpy.create_node('refiner_flush_test')
         qos = model_qos()
-        pubs = [node.create_publisher(t, f'keyframes/{n}', qos) for t, n in
-                ((Image, 'image'), (CameraInfo, 'camera_info'), (PoseStamped, 'pose'))]  # fmt: skip
+        pubs = create_publishers(node, keyframe_topics(qos))
         depths: list[Image] = []
         debug: dict[str, list[Image]] = {'depth/sky_mask': [], 'depth/preview': [], 'depth/mvs': []}
         node.create_subscription(Image, 'keyframes/depth', depths.append, qos)
@@ -363,27 +341,23 @@ def test_refiner_flush_refine_again_debug_and_poseless_frames(repo, bag, ros_env
             node.create_subscription(Image, name, box.append, reliable_qos())
 
         def send(i: int, pose: bool = True, stamp: int | None = None) -> None:
-            f = bag[i]
-            stamp = f['stamp'] if stamp is None else stamp
-            header = msg_utils.make_header(stamp, 'camera_optical')
-            pubs[0].publish(msg_utils.numpy_to_image(f['rgb'], 'rgb8', header))
-            pubs[1].publish(msg_utils.pinhole_to_camera_info(f['camera'], header))
-            if pose:
-                pubs[2].publish(msg_utils.matrix_to_pose_stamped(f['pose'], stamp_ns=stamp, frame_id='map'))
+            publish_frame(pubs, bag[i], stamp, pose)
 
-        assert _wait(node, lambda: all(p.get_subscription_count() > 0 for p in pubs), 60), proc.text
+        assert spin_until(node, lambda: all(p.get_subscription_count() > 0 for p in pubs.values()), 60), (
+            proc.text
+        )
         for k in range(3):  # frames without a pose, fewer than sfm_min_keyframes: a warning says why
             send(0, pose=False, stamp=bag[0]['stamp'] - 1000 + k)
         warned = lambda: 'without keyframes/pose: SfM mode starts once 4' in proc.text  # noqa: E731
-        assert _wait(node, warned, 20), proc.text
+        assert spin_until(node, warned, 20), proc.text
         send(0)
         send(24)
-        assert _wait(node, lambda: len(depths) == 2 and proc.text.count('with 1 neighbours') == 2, 60), (
+        assert spin_until(node, lambda: len(depths) == 2 and proc.text.count('with 1 neighbours') == 2, 60), (
             proc.text
         )
         send(48)
-        assert _wait(node, lambda: len(depths) == 5, 90), proc.text
-        _wait(node, lambda: all(len(b) == 5 for b in debug.values()), 10)
+        assert spin_until(node, lambda: len(depths) == 5, 90), proc.text
+        spin_until(node, lambda: all(len(b) == 5 for b in debug.values()), 10)
     finally:
         rclpy.try_shutdown()
         proc.stop()

@@ -9,23 +9,23 @@ and its depth must match the ground truth up to the SfM scale (found from the pu
 
 from __future__ import annotations
 
-import contextlib
-import threading
 import time
 
-import cv2
 import numpy as np
 import pytest
-import rclpy
 from geometry_msgs.msg import PoseStamped
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from sensor_msgs.msg import CameraInfo, Image
+from node_harness import (
+    assert_refuses_to_start,
+    in_process,
+    keyframe_topics,
+    publish_frame,
+    shipped_frames,
+)
+from sensor_msgs.msg import Image
 
 import msg_utils
-from ibr_ros.bag import open_bag
 from ibr_ros.core.sfm import umeyama
-from ibr_ros.jobs.synth_bag import TOPICS
-from ibr_ros.nodes.common import EXIT_BAD_CONFIG, model_qos
+from ibr_ros.nodes.common import model_qos
 
 FRAMES = tuple(range(0, 192, 24))
 SIZE = (320, 180)
@@ -34,27 +34,7 @@ SIZE = (320, 180)
 @pytest.fixture(scope='module')
 def keyframes(repo) -> list[dict]:
     """stamp, rgb, camera, GT pose and GT depth of FRAMES, resized to SIZE."""
-    with open_bag(repo / 'bags' / 'synth_orbit_s0') as reader:
-        stamps = [m.timestamp_ns for m in reader.messages([TOPICS['pose']])]
-        index = {stamps[i]: k for k, i in enumerate(FRAMES)}
-        out: list[dict] = [{'stamp': stamps[i]} for i in FRAMES]
-        for m in reader.messages([TOPICS[k] for k in ('image', 'camera_info', 'pose', 'depth')]):
-            if (k := index.get(m.timestamp_ns)) is None:
-                continue
-            if m.topic == TOPICS['image']:
-                out[k]['rgb'] = msg_utils.compressed_image_to_numpy(m.msg)
-            elif m.topic == TOPICS['camera_info']:
-                out[k]['camera'] = msg_utils.camera_info_to_pinhole(m.msg)
-            elif m.topic == TOPICS['pose']:
-                out[k]['pose'] = msg_utils.pose_stamped_to_matrix(m.msg)
-            else:
-                out[k]['gt'] = msg_utils.depth_image_to_m(m.msg).copy()
-    for f in out:
-        cam = f['camera']
-        f['rgb'] = np.ascontiguousarray(cv2.resize(f['rgb'], SIZE, interpolation=cv2.INTER_AREA))
-        f['camera'] = cam.scaled(SIZE[0] / cam.width, SIZE[1] / cam.height)
-        f['gt'] = cv2.resize(f['gt'], SIZE, interpolation=cv2.INTER_NEAREST)
-    return out
+    return shipped_frames(repo, FRAMES, SIZE)
 
 
 @pytest.mark.parametrize(
@@ -69,82 +49,42 @@ def keyframes(repo) -> list[dict]:
 def test_bad_sfm_parameters_stop_the_node_with_one_line(params, error, capfd):
     from ibr_ros.nodes.depth_refiner import main
 
-    argv = ['depth_refiner', '--ros-args']
-    for prm in params:
-        argv += ['-p', prm]
-    assert main(argv) == EXIT_BAD_CONFIG
-    err = capfd.readouterr().err
-    assert f'[depth_refiner]: cannot start: {error}' in err
-    assert 'Traceback' not in err
+    assert_refuses_to_start(main, 'depth_refiner', params, error, capfd)
 
 
 def test_refiner_registers_and_refines_keyframes_without_poses(repo, keyframes):
     from ibr_ros.nodes.depth_refiner import DepthRefinerNode
 
-    args = ['--ros-args', '--params-file', str(repo / 'config' / 'depth_refiner.yaml')]
-    for prm in ('sfm_pose_wait_s:=0.5', 'sfm_min_keyframes:=5', 'sfm_every:=3', 'flush_after_s:=2.0',
-                'max_neighbours:=2'):  # fmt: skip
-        args += ['-p', prm]
-    rclpy.init(args=args)
-    executor = SingleThreadedExecutor()
-    node = feeder = thread = None
-    try:
-        node = DepthRefinerNode()
+    config = repo / 'config' / 'depth_refiner.yaml'
+    params = {'sfm_pose_wait_s': 0.5, 'sfm_min_keyframes': 5, 'sfm_every': 3, 'flush_after_s': 2.0,
+              'max_neighbours': 2}  # fmt: skip
+    with in_process(DepthRefinerNode, config, 'sfm_refiner_feeder', **params) as h:
+        node = h.node
         assert (node.sfm_mode, node.sfm_active) == ('auto', False)
-        feeder = rclpy.create_node('sfm_refiner_feeder')
-        depths: list[Image] = []
-        poses: list[PoseStamped] = []
-        feeder.create_subscription(Image, 'keyframes/depth', depths.append, model_qos())
-        feeder.create_subscription(PoseStamped, 'keyframes/pose', poses.append, model_qos())
-        pubs = [feeder.create_publisher(t, f'keyframes/{n}', model_qos()) for t, n in
-                ((Image, 'image'), (CameraInfo, 'camera_info'))]  # fmt: skip
-        executor.add_node(node)
-        executor.add_node(feeder)
-
-        def spin() -> None:
-            with contextlib.suppress(ExternalShutdownException):
-                executor.spin()
-
-        thread = threading.Thread(target=spin, daemon=True)
-        thread.start()
-
-        def wait(cond, timeout: float) -> bool:
-            deadline = time.monotonic() + timeout
-            while not cond() and time.monotonic() < deadline:
-                time.sleep(0.05)
-            return cond()
-
-        assert wait(lambda: all(p.get_subscription_count() for p in pubs), 30)
+        depths = h.collect(Image, 'keyframes/depth', model_qos())
+        poses = h.collect(PoseStamped, 'keyframes/pose', model_qos())
+        spec = keyframe_topics(model_qos())
+        pubs = h.publishers({k: spec[k] for k in ('image', 'info')})
         # The refiner's pose publisher and the feeder's pose subscription must be matched.
-        assert wait(lambda: node.pub_pose.get_subscription_count() >= 1, 30)
+        assert h.wait(lambda: node.pub_pose.get_subscription_count() >= 1, 30)
 
         def send(frames: list[dict]) -> None:
             for f in frames:
-                header = msg_utils.make_header(f['stamp'], 'camera_optical')
-                pubs[0].publish(msg_utils.numpy_to_image(f['rgb'], 'rgb8', header))
-                pubs[1].publish(msg_utils.pinhole_to_camera_info(f['camera'], header))
+                publish_frame(pubs, f, pose=False)
 
         t0 = time.monotonic()
         send(keyframes[:5])
-        assert wait(lambda: len(poses) == 5, 60), node.bad.counts
+        assert h.wait(lambda: len(poses) == 5, 60), node.bad.counts
         t_first = time.monotonic() - t0
         assert node.sfm_active
         send(keyframes[5:])
-        assert wait(lambda: len(poses) == 8 and len(depths) == 8, 180), (len(poses), len(depths))
+        assert h.wait(lambda: len(poses) == 8 and len(depths) == 8, 180), (len(poses), len(depths))
         t_all = time.monotonic() - t0
         # Idle: nothing waits for registration or refinement, so no further depth can come.
-        assert wait(lambda: not node._sfm_queue and not node.schedule.unrefined(), 10)
+        assert h.wait(lambda: not node._sfm_queue and not node.schedule.unrefined(), 10)
         refine_times = list(node.refine_times)
         sfm_times = list(node.sfm_times)
         bad = dict(node.bad.counts)
-    finally:
-        executor.shutdown(timeout_sec=5)
-        for n in (node, feeder):
-            if n is not None:
-                n.destroy_node()
-        rclpy.try_shutdown()
-        if thread is not None:
-            thread.join(timeout=10)
     assert bad == {}
     stamps = [f['stamp'] for f in keyframes]
     assert sorted(msg_utils.stamp_to_ns(m.header.stamp) for m in poses) == stamps  # one pose each

@@ -32,11 +32,9 @@ import math
 import re
 import subprocess
 import sys
-import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -44,8 +42,17 @@ import numpy as np
 import pytest
 import rclpy
 from geometry_msgs.msg import PoseStamped
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
+from node_harness import (
+    InProcess,
+    image_msg,
+    in_process,
+    info_msg,
+    keyframe_topics,
+    pose_msg,
+    resized,
+    shipped_frames,
+    spin_until,
+)
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image
@@ -56,13 +63,13 @@ from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.geometry import matrix_from_rt
 from ibr_ros.core.keyframes import KeyframeSelector, blur_score
 from ibr_ros.core.render import NovelViewRenderer, SourceView
-from ibr_ros.jobs.synth_bag import TOPICS
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
 N_BAD = 1000
 FRAMES = 120  # the bag's first 12 s (10 fps)
 ODD = ('yuv422_garbage', '32FC1', '16UC1', '', 'jpeg', 'rgb16')
 PIPE_QOS = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
+FEEDER = 'resilience_feeder'
 LOG_LINE = re.compile(r'rejected input \((\w+), ')
 
 
@@ -72,45 +79,7 @@ LOG_LINE = re.compile(r'rejected input \((\w+), ')
 @pytest.fixture(scope='module')
 def bag(repo) -> dict[int, dict]:
     """Frames 0..FRAMES-1 of the shipped bag: stamp, rgb, camera, pose, and ground-truth depth (every 3rd)."""
-    with open_bag(repo / 'bags' / 'synth_orbit_s0') as reader:
-        stamps = [m.timestamp_ns for m in reader.messages([TOPICS['pose']])][:FRAMES]
-        index = {s: i for i, s in enumerate(stamps)}
-        out: dict[int, dict] = {i: {'stamp': s} for i, s in enumerate(stamps)}
-        for m in reader.messages([TOPICS[k] for k in ('image', 'camera_info', 'pose', 'depth')]):
-            if (i := index.get(m.timestamp_ns)) is None:
-                continue
-            if m.topic == TOPICS['image']:
-                out[i]['rgb'] = np.ascontiguousarray(msg_utils.compressed_image_to_numpy(m.msg))
-            elif m.topic == TOPICS['camera_info']:
-                out[i]['camera'] = msg_utils.camera_info_to_pinhole(m.msg)
-            elif m.topic == TOPICS['pose']:
-                out[i]['pose'] = msg_utils.pose_stamped_to_matrix(m.msg)
-            else:
-                out[i]['gt'] = msg_utils.depth_image_to_m(m.msg).copy()
-    return out
-
-
-def shrink(f: dict, width: int, height: int) -> dict:
-    """Frame ``f`` resized to ``width`` x ``height`` (intrinsics scaled, ground truth nearest)."""
-    cam = f['camera']
-    out = dict(f)
-    out['rgb'] = cv2.resize(f['rgb'], (width, height), interpolation=cv2.INTER_AREA)
-    out['camera'] = cam.scaled(width / cam.width, height / cam.height)
-    if 'gt' in f:
-        out['gt'] = cv2.resize(f['gt'], (width, height), interpolation=cv2.INTER_NEAREST)
-    return out
-
-
-def image_msg(rgb: np.ndarray, stamp: int) -> Image:
-    return msg_utils.numpy_to_image(rgb, 'rgb8', msg_utils.make_header(stamp, 'camera_optical'))
-
-
-def info_msg(cam: PinholeCamera, stamp: int) -> CameraInfo:
-    return msg_utils.pinhole_to_camera_info(cam, msg_utils.make_header(stamp, 'camera_optical'))
-
-
-def pose_msg(t_wc: np.ndarray, stamp: int, frame_id: str = 'map') -> PoseStamped:
-    return msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=frame_id)
+    return dict(enumerate(shipped_frames(repo, range(FRAMES))))
 
 
 # ------------------------------------------------------------------------------- defects
@@ -171,116 +140,7 @@ def spread(n_bad: int, n_gaps: int) -> list[int]:
     return [len(a) for a in np.array_split(np.arange(n_bad), n_gaps)]
 
 
-# ------------------------------------------------------------------------------- harness
-
-
-class InProcess:
-    """The node under test and a feeder node, spun by one executor in a background thread.
-
-    The node's subscription callbacks are wrapped to count handled messages, so that :meth:`send`
-    can wait until the node is done with one message before it publishes the next.
-    """
-
-    def __init__(self, node: Node) -> None:
-        self.node = node
-        self.feeder = rclpy.create_node('resilience_feeder')
-        self.cond = threading.Condition()
-        self.handled = 0
-        self.error: BaseException | None = None
-        for sub in node.subscriptions:
-            sub.callback = self._counted(sub.callback)
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(node)
-        self.executor.add_node(self.feeder)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _counted(self, callback: Callable) -> Callable:
-        def handled(msg: object) -> None:
-            try:
-                callback(msg)
-            finally:
-                with self.cond:
-                    self.handled += 1
-                    self.cond.notify_all()
-
-        return handled
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
-        except BaseException as exc:  # a callback raised: the node is dead
-            self.error = exc
-        with self.cond:
-            self.cond.notify_all()
-
-    @property
-    def alive(self) -> bool:
-        return self.error is None and self.thread.is_alive()
-
-    def wait(self, cond: Callable[[], bool], timeout: float) -> bool:
-        """Wait until ``cond()`` (re-checked on every notification, at least every 20 ms) or the node dies."""
-        deadline = time.monotonic() + timeout
-        with self.cond:
-            while not cond():
-                left = deadline - time.monotonic()
-                if left <= 0 or self.error is not None:
-                    return cond()
-                self.cond.wait(min(left, 0.02))
-        return True
-
-    def collect(self, cls: type, topic: str, qos: QoSProfile) -> list:
-        """Messages arriving at the feeder on ``topic``."""
-        box: list = []
-
-        def got(msg: object) -> None:
-            with self.cond:
-                box.append(msg)
-                self.cond.notify_all()
-
-        self.feeder.create_subscription(cls, topic, got, qos)
-        return box
-
-    def publishers(self, spec: dict[str, tuple[type, str, QoSProfile]]) -> dict:
-        """Feeder publishers, once each is matched with the node's subscription."""
-        pubs = {k: self.feeder.create_publisher(cls, topic, qos) for k, (cls, topic, qos) in spec.items()}
-        assert self.wait(lambda: all(p.get_subscription_count() > 0 for p in pubs.values()), 30)
-        return pubs
-
-    def send(self, pub, msg: object) -> None:
-        """Publish ``msg`` and wait until the node's callback for it returned."""
-        with self.cond:
-            target = self.handled + 1
-        pub.publish(msg)
-        assert self.wait(lambda: self.handled >= target, 30), (
-            f'{pub.topic_name}: not handled ({self.error!r})'
-        )
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=5)
-        self.node.destroy_node()
-        self.feeder.destroy_node()
-
-
-@contextmanager
-def in_process(factory: Callable[[], Node], repo: Path, name: str, **params: object) -> Iterator[InProcess]:
-    """rclpy with ``config/<name>.yaml`` and ``params``, the node made by ``factory``, its harness."""
-    args = ['--ros-args', '--params-file', str(repo / 'config' / f'{name}.yaml')]
-    for key, value in params.items():
-        args += ['-p', f'{key}:={str(value).lower() if isinstance(value, bool) else value}']
-    rclpy.init(args=args)
-    h = None
-    try:
-        h = InProcess(factory())
-        yield h
-    finally:
-        if h is not None:
-            h.close()
-        rclpy.try_shutdown()
-        if h is not None:
-            h.thread.join(timeout=10)
+# ------------------------------------------------------------------------------------- log
 
 
 def check_log(text: str, counters: list[Counter], seconds: float, throttle_s: float) -> None:
@@ -290,6 +150,73 @@ def check_log(text: str, counters: list[Counter], seconds: float, throttle_s: fl
     assert set(lines) == set(counted), (lines, counters)
     periods = 1 + math.ceil(seconds / throttle_s)
     assert all(n <= periods * counted[r] for r, n in lines.items()), (lines, seconds)
+
+
+def by_reason(sent: Counter[str], reason_of: dict[str, str]) -> Counter[str]:
+    """What the node should count per reason for the N_BAD messages ``sent`` (per kind)."""
+    assert sum(sent.values()) == N_BAD
+    want: Counter[str] = Counter()
+    for kind, n in sent.items():
+        want[reason_of[kind]] += n
+    return want
+
+
+# ---------------------------------------------------------------------------------- feeding
+
+
+def send_frame(h: InProcess, pubs: dict, f: dict, stamp: int, order: tuple[str, ...], *,
+               cam: PinholeCamera | None = None, frame_id: str = 'map') -> None:  # fmt: skip
+    """Frame ``f``'s valid image, camera_info (or ``cam``) and pose, stamped ``stamp``, in ``order``."""
+    msgs = {
+        'image': image_msg(f['rgb'], stamp),
+        'info': info_msg(cam or f['camera'], stamp),
+        'pose': pose_msg(f['pose'], stamp, frame_id),
+    }
+    for which in order:
+        h.send(pubs[which], msgs[which])
+
+
+def send_defect(h: InProcess, pubs: dict, kind: str, rng: np.random.Generator, f: dict, stamp: int) -> bool:
+    """Whether ``kind`` is a defect of an image, camera_info or pose; if so, frame ``f``'s one is sent."""
+    if kind in ('encoding', 'step', 'size'):
+        h.send(pubs['image'], bad_image(kind, rng, f['rgb'], stamp))
+    elif kind == 'uncalibrated':
+        h.send(pubs['info'], bad_info(rng, f['camera'], stamp))
+    elif kind in ('nan_pose', 'zero_quaternion'):
+        h.send(pubs['pose'], bad_pose(kind, rng, f['pose'], stamp))
+    else:
+        return False
+    return True
+
+
+def feed(h: InProcess, pubs: dict, frames: list[dict], kinds: tuple[str, ...], rng: np.random.Generator,
+         order: tuple[str, ...], stale: Callable[[dict, int, int], int]) -> Counter[str]:  # fmt: skip
+    """Send ``frames`` (their messages in ``order``) with N_BAD malformed messages spread between them.
+
+    The defects cycle through ``kinds`` (of :data:`SUB_KINDS`); bad message ``n`` after frame ``f`` is
+    stamped between ``f`` and the next frame, except a stale one: ``stale(f, n, j)`` with ``j`` the
+    number of bad messages so far. Returns how many of each kind were sent.
+    """
+    sent: Counter[str] = Counter()
+    j = 0
+    for k, f in enumerate(frames):
+        send_frame(h, pubs, f, f['stamp'], order)
+        if k == len(frames) - 1:
+            break
+        for n in range(spread(N_BAD, len(frames) - 1)[k]):
+            kind = kinds[j % len(kinds)]
+            j += 1
+            sent[kind] += 1
+            stamp = f['stamp'] + 1000 * (n + 1)  # between this frame and the next
+            if send_defect(h, pubs, kind, rng, f, stamp):
+                continue
+            if kind == 'mismatch':  # a complete frame whose camera_info is twice the image size
+                send_frame(h, pubs, f, stamp, order, cam=f['camera'].scaled(2.0))
+            else:
+                old = stale(f, n, j)
+                which = ('image', 'info', 'pose')[int(rng.integers(3))]
+                h.send(pubs[which], lone(which, f, old))
+    return sent
 
 
 # -------------------------------------------------------------------------- frame_subsampler
@@ -310,9 +237,10 @@ SUB_REASON = {
 def test_frame_subsampler_survives_1000_bad_messages(repo, bag, capfd):
     from ibr_ros.nodes.frame_subsampler import FrameSubsampler
 
-    frames = [shrink(bag[i], 160, 90) for i in range(0, FRAMES, 2)]  # 60 frames, 5 fps
+    frames = [resized(bag[i], (160, 90)) for i in range(0, FRAMES, 2)]  # 60 frames, 5 fps
     rng = np.random.default_rng(1)
-    with in_process(FrameSubsampler, repo, 'frame_subsampler', compressed=False, scene_depth_m=120.0) as h:
+    config = repo / 'config' / 'frame_subsampler.yaml'
+    with in_process(FrameSubsampler, config, FEEDER, compressed=False, scene_depth_m=120.0) as h:
         node = h.node
         keyframes = {
             k: h.collect(cls, f'keyframes/{k}', model_qos())
@@ -325,33 +253,9 @@ def test_frame_subsampler_survives_1000_bad_messages(repo, bag, capfd):
         })  # fmt: skip
         capfd.readouterr()
         t0 = time.monotonic()
-        sent: Counter[str] = Counter()
-        j = 0
-        for k, f in enumerate(frames):
-            h.send(pubs['info'], info_msg(f['camera'], f['stamp']))
-            h.send(pubs['pose'], pose_msg(f['pose'], f['stamp']))
-            h.send(pubs['image'], image_msg(f['rgb'], f['stamp']))
-            if k == len(frames) - 1:
-                break
-            for n in range(spread(N_BAD, len(frames) - 1)[k]):
-                kind = SUB_KINDS[j % len(SUB_KINDS)]
-                j += 1
-                sent[kind] += 1
-                stamp = f['stamp'] + 1000 * (n + 1)  # between this frame and the next
-                if kind in ('encoding', 'step', 'size'):
-                    h.send(pubs['image'], bad_image(kind, rng, f['rgb'], stamp))
-                elif kind == 'uncalibrated':
-                    h.send(pubs['info'], bad_info(rng, f['camera'], stamp))
-                elif kind in ('nan_pose', 'zero_quaternion'):
-                    h.send(pubs['pose'], bad_pose(kind, rng, f['pose'], stamp))
-                elif kind == 'mismatch':  # a complete frame whose camera_info is twice the image size
-                    h.send(pubs['info'], info_msg(f['camera'].scaled(2.0), stamp))
-                    h.send(pubs['pose'], pose_msg(f['pose'], stamp))
-                    h.send(pubs['image'], image_msg(f['rgb'], stamp))
-                else:  # a lone valid message older than the frame just matched
-                    old = f['stamp'] - 50_000_000 - 1000 * n
-                    which = ('image', 'info', 'pose')[int(rng.integers(3))]
-                    h.send(pubs[which], lone(which, f, old))
+        # A stale message: a lone valid one older than the frame just matched.
+        sent = feed(h, pubs, frames, SUB_KINDS, rng, ('info', 'pose', 'image'),
+                    stale=lambda f, n, j: f['stamp'] - 50_000_000 - 1000 * n)  # fmt: skip
         # Keyframes of the valid stream alone, by the node's own selection policy.
         selector = KeyframeSelector(node.config)
         expected = [
@@ -368,10 +272,7 @@ def test_frame_subsampler_survives_1000_bad_messages(repo, bag, capfd):
         counts = Counter(node.bad.counts)
         throttle_s = node.bad.throttle_s
     log = capfd.readouterr().err
-    assert sum(sent.values()) == N_BAD
-    want = Counter()
-    for kind, n in sent.items():
-        want[SUB_REASON[kind]] += n
+    want = by_reason(sent, SUB_REASON)
     assert counts == want, f'counted {dict(counts)}, sent {dict(sent)}'
     assert 4 <= len(expected) < len(frames) // 2
     for topic, box in keyframes.items():
@@ -394,47 +295,19 @@ def test_depth_refiner_survives_1000_bad_messages(repo, bag, capfd):
     """Stale messages wait among the ``max_pending`` incomplete frames and are counted when evicted."""
     from ibr_ros.nodes.depth_refiner import DepthRefinerNode
 
-    kfs = [shrink(bag[i], 320, 180) for i in REF_KEYFRAMES]
+    kfs = [resized(bag[i], (320, 180)) for i in REF_KEYFRAMES]
     rng = np.random.default_rng(2)
     params = {'max_neighbours': 2, 'flush_after_s': 1.0, 'max_pending': 30}
-    with in_process(DepthRefinerNode, repo, 'depth_refiner', **params) as h:
+    with in_process(DepthRefinerNode, repo / 'config' / 'depth_refiner.yaml', FEEDER, **params) as h:
         node = h.node
         depths = h.collect(Image, 'keyframes/depth', model_qos())
-        pubs = h.publishers({
-            'image': (Image, 'keyframes/image', model_qos()),
-            'info': (CameraInfo, 'keyframes/camera_info', model_qos()),
-            'pose': (PoseStamped, 'keyframes/pose', model_qos()),
-        })  # fmt: skip
+        pubs = h.publishers(keyframe_topics(model_qos()))
         capfd.readouterr()
         t0 = time.monotonic()
-        sent: Counter[str] = Counter()
-        j = 0
         first = kfs[0]['stamp']
-        for k, f in enumerate(kfs):
-            h.send(pubs['image'], image_msg(f['rgb'], f['stamp']))
-            h.send(pubs['info'], info_msg(f['camera'], f['stamp']))
-            h.send(pubs['pose'], pose_msg(f['pose'], f['stamp']))
-            if k == len(kfs) - 1:
-                break
-            for n in range(spread(N_BAD, len(kfs) - 1)[k]):
-                kind = REF_KINDS[j % len(REF_KINDS)]
-                j += 1
-                sent[kind] += 1
-                stamp = f['stamp'] + 1000 * (n + 1)
-                if kind in ('encoding', 'step', 'size'):
-                    h.send(pubs['image'], bad_image(kind, rng, f['rgb'], stamp))
-                elif kind == 'uncalibrated':
-                    h.send(pubs['info'], bad_info(rng, f['camera'], stamp))
-                elif kind in ('nan_pose', 'zero_quaternion'):
-                    h.send(pubs['pose'], bad_pose(kind, rng, f['pose'], stamp))
-                elif kind == 'mismatch':
-                    h.send(pubs['image'], image_msg(f['rgb'], stamp))
-                    h.send(pubs['info'], info_msg(f['camera'].scaled(2.0), stamp))
-                    h.send(pubs['pose'], pose_msg(f['pose'], stamp))
-                else:  # a lone message older than every keyframe: its frame never completes
-                    old = first - 1_000_000_000 - 1000 * j
-                    which = ('image', 'info', 'pose')[int(rng.integers(3))]
-                    h.send(pubs[which], lone(which, f, old))
+        # A stale message: a lone one older than every keyframe, so its frame never completes.
+        sent = feed(h, pubs, kfs, REF_KINDS, rng, ('image', 'info', 'pose'),
+                    stale=lambda f, n, j: first - 1_000_000_000 - 1000 * j)  # fmt: skip
         want_stamps = {f['stamp'] for f in kfs}
         assert h.wait(lambda: {msg_utils.stamp_to_ns(m.header.stamp) for m in depths} >= want_stamps, 60), [
             msg_utils.stamp_to_ns(m.header.stamp) for m in depths
@@ -445,10 +318,7 @@ def test_depth_refiner_survives_1000_bad_messages(repo, bag, capfd):
         waiting = len(node.frames)  # incomplete frames still waiting for their other messages
         throttle_s = node.bad.throttle_s
     log = capfd.readouterr().err
-    assert sum(sent.values()) == N_BAD
-    want = Counter()
-    for kind, n in sent.items():
-        want[SUB_REASON[kind]] += n
+    want = by_reason(sent, SUB_REASON)
     # The stale frames still waiting at the end are not counted (yet); all others are.
     assert 0 < waiting <= params['max_pending']
     want['incomplete'] -= waiting
@@ -513,16 +383,15 @@ def bad_depth(kind: str, rng: np.random.Generator, depth: np.ndarray, stamp: int
 def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
     from ibr_ros.nodes.view_renderer import ViewRenderer
 
-    kfs = [shrink(bag[i], 320, 180) for i in RND_KEYFRAMES]
+    kfs = [resized(bag[i], (320, 180)) for i in RND_KEYFRAMES]
     rng = np.random.default_rng(3)
-    with in_process(ViewRenderer, repo, 'view_renderer', n_segments=400) as h:
+    config = repo / 'config' / 'view_renderer.yaml'
+    with in_process(ViewRenderer, config, FEEDER, n_segments=400) as h:
         node = h.node
         replies = h.collect(Image, 'novel_view/image', reliable_qos())
         infos = h.collect(CameraInfo, 'novel_view/camera_info', reliable_qos())
         pubs = h.publishers({
-            'image': (Image, 'keyframes/image', model_qos()),
-            'info': (CameraInfo, 'keyframes/camera_info', model_qos()),
-            'pose': (PoseStamped, 'keyframes/pose', model_qos()),
+            **keyframe_topics(model_qos()),
             'depth': (Image, 'keyframes/depth', model_qos()),
             'query': (PoseStamped, 'novel_view/query', reliable_qos()),
         })  # fmt: skip
@@ -531,9 +400,7 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
         capfd.readouterr()
 
         def keyframe(f: dict, stamp: int, *, cam=None, depth=None, frame_id: str = 'map') -> None:
-            h.send(pubs['image'], image_msg(f['rgb'], stamp))
-            h.send(pubs['info'], info_msg(cam or f['camera'], stamp))
-            h.send(pubs['pose'], pose_msg(f['pose'], stamp, frame_id))
+            send_frame(h, pubs, f, stamp, ('image', 'info', 'pose'), cam=cam, frame_id=frame_id)
             d = f['gt'] if depth is None else depth
             h.send(pubs['depth'], msg_utils.numpy_to_image(d, '32FC1', msg_utils.make_header(stamp)))
 
@@ -568,13 +435,9 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
                 sent[kind] += 1
                 stamp = f['stamp'] + 1000 * (n + 1)
                 g = kfs[k + 1]  # any valid frame: the defect is what counts
-                if kind in ('encoding', 'step', 'size'):
-                    h.send(pubs['image'], bad_image(kind, rng, g['rgb'], stamp))
-                elif kind == 'uncalibrated':
-                    h.send(pubs['info'], bad_info(rng, g['camera'], stamp))
-                elif kind in ('nan_pose', 'zero_quaternion'):
-                    h.send(pubs['pose'], bad_pose(kind, rng, g['pose'], stamp))
-                elif kind in ('depth_encoding', 'depth_size'):
+                if send_defect(h, pubs, kind, rng, g, stamp):
+                    continue
+                if kind in ('depth_encoding', 'depth_size'):
                     h.send(pubs['depth'], bad_depth(kind, rng, g['gt'], stamp))
                 elif kind == 'mismatch':
                     keyframe(g, stamp, cam=g['camera'].scaled(0.5))
@@ -701,9 +564,7 @@ def test_bag_player_skips_1000_undecodable_payloads(ros_env, tmp_path, garbage_b
                 '-p', 'ack_timeout_s:=2.0']  # fmt: skip
         proc = subprocess.Popen(argv, env=ros_env, stdout=log.open('w'), stderr=subprocess.STDOUT)
         try:
-            deadline = time.monotonic() + 40
-            while proc.poll() is None and time.monotonic() < deadline:
-                rclpy.spin_once(node, timeout_sec=0.05)
+            spin_until(node, lambda: proc.poll() is not None, 40)
             quiet = 0
             while quiet < 3:  # what the player published (and saw acknowledged) is already here
                 before = sum(map(len, got.values()))

@@ -11,13 +11,11 @@ import math
 
 import numpy as np
 import pytest
+from node_harness import shipped_frames
 
-import msg_utils
-from ibr_ros.bag import open_bag
 from ibr_ros.core.geometry import matrix_from_rt
 from ibr_ros.core.sfm import SfmError, umeyama
 from ibr_ros.core.sfm_session import ScaleHint, SfmSession
-from ibr_ros.jobs.synth_bag import TOPICS
 
 FRAMES = tuple(range(0, 192, 24))
 
@@ -25,21 +23,7 @@ FRAMES = tuple(range(0, 192, 24))
 @pytest.fixture(scope='module')
 def views(repo) -> list[dict]:
     """stamp, rgb (640x360), camera and GT pose of FRAMES."""
-    with open_bag(repo / 'bags' / 'synth_orbit_s0') as reader:
-        stamps = [m.timestamp_ns for m in reader.messages([TOPICS['pose']])]
-        index = {stamps[i]: k for k, i in enumerate(FRAMES)}
-        out = [{'stamp': stamps[i]} for i in FRAMES]
-        for m in reader.messages([TOPICS['image'], TOPICS['camera_info'], TOPICS['pose']]):
-            if m.timestamp_ns not in index:
-                continue
-            f = out[index[m.timestamp_ns]]
-            if m.topic == TOPICS['image']:
-                f['rgb'] = np.ascontiguousarray(msg_utils.compressed_image_to_numpy(m.msg))
-            elif m.topic == TOPICS['camera_info']:
-                f['camera'] = msg_utils.camera_info_to_pinhole(m.msg)
-            else:
-                f['pose'] = msg_utils.pose_stamped_to_matrix(m.msg)
-    return out
+    return shipped_frames(repo, FRAMES)
 
 
 def _rot_deg(r_a: np.ndarray, r_b: np.ndarray) -> float:
