@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from ibr_ros.bag import TYPESTORE, BagWriter, detect_topics, find_bags, open_bag, serialize
+from ibr_ros.bag import TYPESTORE, BagWriter, OfferedQos, detect_topics, find_bags, open_bag, serialize
 from ibr_ros.bag.info import image_dimensions
 from ibr_ros.errors import BagError
 
@@ -297,19 +297,194 @@ def test_custom_and_unknown_types(tmp_path: Path) -> None:
 
 
 def test_sqlite3_bag(tmp_path: Path) -> None:
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     path = tmp_path / 'db3bag'
+    forever = QosTime(9223372036, 854775807)
+    qos = Qos(
+        QosHistory.KEEP_LAST, 7, QosReliability.BEST_EFFORT, QosDurability.TRANSIENT_LOCAL,
+        forever, forever, QosLiveliness.AUTOMATIC, forever, False,
+    )  # fmt: skip
     with Writer(path, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer:
-        conn = writer.add_connection('/cam/image_raw', 'sensor_msgs/msg/Image', typestore=TYPESTORE)
+        conn = writer.add_connection(
+            '/cam/image_raw', 'sensor_msgs/msg/Image', typestore=TYPESTORE, offered_qos_profiles=[qos]
+        )
         for ns in (SEC, 2 * SEC):
             writer.write(conn, ns, TYPESTORE.serialize_cdr(image(ns, 5), 'sensor_msgs/msg/Image'))
     for bag in (path, path / 'db3bag.db3'):
         with open_bag(bag) as reader:
             assert reader.storage == 'sqlite3'
+            assert reader.topics['/cam/image_raw'].offered_qos == (
+                OfferedQos('best_effort', 'transient_local', depth=7),
+            )
             messages = list(reader.messages())
         assert [m.timestamp_ns for m in messages] == [SEC, 2 * SEC]
         assert messages[0].msg.data[0] == 5
+
+
+# -- offered QoS profiles -------------------------------------------------------------------------
+
+DURABLE = OfferedQos('reliable', 'transient_local', depth=1000)
+SENSOR = OfferedQos('best_effort', 'volatile', depth=5)
+#: ``offered_qos_profiles`` as ``ros2 bag record`` (Jazzy, metadata version 8) writes it: a YAML string,
+#: history unknown (discovery does not tell it), depth 0.
+JAZZY_RECORDED = (
+    '- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n  deadline:\n    sec: 9223372036\n'
+    '    nsec: 854775807\n  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n  liveliness: 1\n'
+    '  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n'
+    '  avoid_ros_namespace_conventions: false'
+)
+RECORDED = OfferedQos('reliable', 'volatile', 'unknown', 0)
+
+
+def write_qos_bag(path: Path) -> Path:
+    """A keyframe-like transient-local topic, a best-effort one, one with two profiles, one without."""
+    with BagWriter(path) as writer:
+        writer.add_topic('/keyframes/pose', 'geometry_msgs/msg/PoseStamped', DURABLE)
+        writer.add_topic('/camera/image_raw', 'sensor_msgs/msg/Image', [SENSOR])
+        writer.add_topic('/two', 'std_msgs/msg/String', [DURABLE, OfferedQos(history='keep_all', depth=0)])
+        for i in range(3):
+            writer.write('/keyframes/pose', pose(i * SEC, float(i)), i * SEC)
+            writer.write('/camera/image_raw', image(i * SEC), i * SEC)
+            writer.write('/two', T['std_msgs/msg/String'](data='x'), i * SEC)
+            writer.write('/plain', T['std_msgs/msg/String'](data='y'), i * SEC)
+    return path
+
+
+QOS_WANT = {
+    '/camera/image_raw': (SENSOR,),
+    '/keyframes/pose': (DURABLE,),
+    '/plain': (),
+    '/two': (DURABLE, OfferedQos('reliable', 'volatile', 'keep_all', 0)),
+}
+
+
+def test_offered_qos_round_trips_through_metadata(tmp_path: Path) -> None:
+    import rosbags.rosbag2.metadata
+    import rosbags.rosbag2.reader
+    import yaml
+    from mcap.reader import make_reader
+    from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+    from rosbags.rosbag2 import Reader
+
+    from ibr_ros.bag._sources import McapSource
+    from ibr_ros.bag.qos import parse_offered_qos
+
+    path = write_qos_bag(tmp_path / 'bag')
+    for bag in (path, path / 'bag_0.mcap'):
+        with open_bag(bag) as reader:
+            assert {t: i.offered_qos for t, i in reader.topics.items()} == QOS_WANT
+    assert {t: i.offered_qos for t, i in McapSource(path / 'bag_0.mcap').topics.items()} == QOS_WANT
+    assert rosbags.rosbag2.reader.parse_qos is rosbags.rosbag2.metadata.parse_qos  # unpatched after open
+
+    # rosbag2's format: metadata.yaml and each MCAP channel hold the same version 8 string (rmw enums).
+    meta = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    stored = {
+        t['topic_metadata']['name']: t['topic_metadata']['offered_qos_profiles']
+        for t in meta['topics_with_message_count']
+    }
+    with (path / 'bag_0.mcap').open('rb') as f:
+        summary = make_reader(f).get_summary()
+    assert {c.topic: c.metadata['offered_qos_profiles'] for c in summary.channels.values()} == stored
+    assert stored['/plain'] == ''
+    (durable,) = yaml.safe_load(stored['/keyframes/pose'])
+    assert durable['history'] == durable['reliability'] == durable['durability'] == durable['liveliness'] == 1
+    assert durable['depth'] == 1000
+    assert durable['deadline'] == {'sec': 9223372036, 'nsec': 854775807}
+    assert {t: parse_offered_qos(v) for t, v in stored.items()} == QOS_WANT
+
+    # rosbags' own reader (which parses it as rosbag2 does) agrees.
+    with Reader(path) as rosbag2:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in rosbag2.connections}
+    (kf,) = qos['/keyframes/pose']
+    assert (kf.history, kf.depth) == (QosHistory.KEEP_LAST, 1000)
+    assert (kf.reliability, kf.durability) == (QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL)
+    assert qos['/camera/image_raw'][0].reliability == QosReliability.BEST_EFFORT
+    assert [q.history for q in qos['/two']] == [QosHistory.KEEP_LAST, QosHistory.KEEP_ALL]
+    assert qos['/plain'] == []
+
+
+def test_writer_qos_declarations(tmp_path: Path) -> None:
+    with BagWriter(tmp_path / 'bag') as writer:
+        writer.add_topic('/a', 'std_msgs/msg/String', DURABLE)
+        writer.add_topic('/a', 'std_msgs/msg/String', [DURABLE])  # the same: no-op
+        writer.add_topic('/a', 'std_msgs/msg/String')  # no QoS given: no-op
+        with pytest.raises(
+            BagError, match='topic /a is declared with reliable transient_local keep_last 1000'
+        ):
+            writer.add_topic('/a', 'std_msgs/msg/String', SENSOR)
+        writer.write('/b', T['std_msgs/msg/String'](data='x'), 1)
+        with pytest.raises(BagError, match='topic /b is declared with no QoS already'):
+            writer.add_topic('/b', 'std_msgs/msg/String', DURABLE)
+        with pytest.raises(TypeError, match='qos must be OfferedQos'):
+            writer.add_topic('/c', 'std_msgs/msg/String', {'durability': 'transient_local'})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="durability 'latched' is not one of"):
+        OfferedQos(durability='latched')  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match='depth -1'):
+        OfferedQos(depth=-1)
+
+
+def test_rosbag2_qos_formats_and_malformed_ones(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    import yaml
+
+    path = write_qos_bag(tmp_path / 'bag')
+    version9 = {
+        'history': 'keep_last', 'depth': 3, 'reliability': 'reliable', 'durability': 'transient_local',
+        'deadline': {'sec': 0, 'nsec': 0}, 'lifespan': {'sec': 0, 'nsec': 0}, 'liveliness': 'automatic',
+        'liveliness_lease_duration': {'sec': 0, 'nsec': 0}, 'avoid_ros_namespace_conventions': False,
+    }  # fmt: skip
+    values = {
+        '/keyframes/pose': JAZZY_RECORDED,
+        '/camera/image_raw': [version9],  # version 9: a list, policies by name
+        '/two': '- history: [unclosed',  # not YAML
+        '/plain': '{history: 1, depth: 1, reliability: 1, durability: 1}',  # a mapping, not a list
+    }
+    meta_path = path / 'metadata.yaml'
+    meta = yaml.safe_load(meta_path.read_text())
+    for topic in meta['rosbag2_bagfile_information']['topics_with_message_count']:
+        topic['topic_metadata']['offered_qos_profiles'] = values[topic['topic_metadata']['name']]
+    meta_path.write_text(yaml.safe_dump(meta))
+    with caplog.at_level(logging.WARNING), open_bag(path) as reader:
+        got = {t: i.offered_qos for t, i in reader.topics.items()}
+        assert len(list(reader.messages())) == 12
+    assert got == {
+        '/keyframes/pose': (RECORDED,),
+        '/camera/image_raw': (OfferedQos('reliable', 'transient_local', depth=3),),
+        '/two': (),
+        '/plain': (),
+    }
+    warned = '\n'.join(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+    assert 'topic /two: ignoring its malformed offered_qos_profiles: not YAML' in warned
+    assert 'topic /plain: ignoring its malformed offered_qos_profiles: a list of profiles expected' in warned
+
+    # In MCAP channel metadata (a bare file): missing and unknown policies.
+    from mcap.writer import Writer
+
+    from ibr_ros.bag.typestore import ros2msg_definition
+
+    bare = tmp_path / 'bad_qos.mcap'
+    with bare.open('wb') as f:
+        writer = Writer(f)
+        writer.start(profile='ros2', library='test')
+        schema = writer.register_schema(
+            'std_msgs/msg/String', 'ros2msg', ros2msg_definition('std_msgs/msg/String').encode()
+        )
+        no_durability = '- {history: 1, depth: 1, reliability: 1}'
+        unknown_reliability = '- {history: 1, depth: 1, reliability: 9, durability: 1}'
+        for i, qos in enumerate([no_durability, unknown_reliability, JAZZY_RECORDED]):
+            channel = writer.register_channel(f'/t{i}', 'cdr', schema, {'offered_qos_profiles': qos})
+            cdr = bytes(TYPESTORE.serialize_cdr(T['std_msgs/msg/String'](data='x'), 'std_msgs/msg/String'))
+            writer.add_message(channel, log_time=SEC + i, data=cdr, publish_time=SEC + i)
+        writer.finish()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING), open_bag(bare) as reader:
+        assert {t: i.offered_qos for t, i in reader.topics.items()} == {
+            '/t0': (), '/t1': (), '/t2': (RECORDED,)
+        }  # fmt: skip
+    warned = '\n'.join(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+    assert 'topic /t0: ignoring its malformed offered_qos_profiles: profile 0: no durability' in warned
+    assert 'topic /t1: ignoring its malformed offered_qos_profiles: profile 0: reliability 9' in warned
 
 
 def test_ros1_bag_comes_out_as_ros2(tmp_path: Path) -> None:

@@ -4,12 +4,15 @@ Checks: the shipped bag's first 3 s arrive complete, byte-identical and in order
 bag's time; a small bag of raw Image (rgb8), CompressedImage, CameraInfo and PoseStamped is paced at
 rate 1, honours a remap and drives a ``use_sim_time`` node's clock; ``loop`` republishes; a missing
 bag is one error line and exit code 2; undecodable payloads are classified by reason, and a looping
-player over nothing but undecodable messages stops (exit 2) instead of spinning.
+player over nothing but undecodable messages stops (exit 2) instead of spinning; topics recorded with
+transient-local QoS are played so, and a ``model_qos`` subscriber that joins after playback still gets
+them all.
 """
 
 from __future__ import annotations
 
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -28,8 +31,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
-from ibr_ros.bag import BagWriter, open_bag
+from ibr_ros.bag import BagWriter, OfferedQos, TopicInfo, open_bag
 from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.nodes.common import model_qos
 
 SUB_QOS = QoSProfile(depth=1000, reliability=QoSReliabilityPolicy.RELIABLE)
 SMALL_START_NS = 1_700_000_000_000_000_000
@@ -97,12 +101,14 @@ def _spin_until(node, cond, timeout: float) -> bool:
     return cond()
 
 
-def _receive(node, topics: dict[str, type]) -> dict[str, list[tuple[float, bytes]]]:
-    """Subscribe (raw bytes, reliable) to ``topics``; arrivals as (monotonic time, data)."""
+def _receive(
+    node, topics: dict[str, type], qos: QoSProfile = SUB_QOS
+) -> dict[str, list[tuple[float, bytes]]]:
+    """Subscribe (raw bytes, ``qos``) to ``topics``; arrivals as (monotonic time, data)."""
     got: dict[str, list[tuple[float, bytes]]] = defaultdict(list)
     for name, cls in topics.items():
         cb = lambda data, name=name: got[name].append((time.monotonic(), data))  # noqa: E731
-        node.create_subscription(cls, name, cb, SUB_QOS, raw=True)
+        node.create_subscription(cls, name, cb, qos, raw=True)
     return got
 
 
@@ -309,3 +315,93 @@ def test_loop_over_undecodable_messages_only_stops_with_exit_2(ros_env, tmp_path
     assert proc.returncode == 2, out
     assert 'pass 1 done: 3 undecodable messages skipped: /camera/pose 3 (corrupt 3)' in out, out
     assert 'published no message; not looping' in out, out
+
+
+def test_play_qos_follows_the_recording_and_overrides():
+    from ibr_ros.nodes.bag_player import PlayQos, parse_topic_qos, play_qos
+
+    def qos(count: int, *offered: OfferedQos, **kw) -> tuple[PlayQos, str]:
+        info = TopicInfo('/t', 'std_msgs/msg/String', count, 'cdr', offered)
+        return play_qos(info, depth=100, max_durable_depth=1000, **kw)
+
+    latched = OfferedQos('reliable', 'transient_local', depth=1)
+    assert qos(7) == (PlayQos('reliable', 'volatile', 100, 'default'), '')
+    assert qos(25, latched) == (PlayQos('reliable', 'transient_local', 25, 'recorded'), '')  # all 25 kept
+    assert qos(25, OfferedQos.from_profile(model_qos()))[0].depth == 1000
+    assert qos(4, OfferedQos('reliable', 'transient_local', 'unknown', 0))[0].depth == 4  # as discovered
+    assert qos(25, latched, latched)[0].durability == 'transient_local'  # two publishers, same QoS
+    durable, note = qos(5000, latched)
+    assert (durable.depth, note) == (1000, 'history of 5000 capped at max_durable_depth')
+    sensor, note = qos(7, OfferedQos('best_effort', 'volatile', depth=5))
+    assert (sensor, 'played reliable' in note) == (PlayQos('reliable', 'volatile', 100, 'recorded'), True)
+    mixed, note = qos(7, latched, OfferedQos())
+    assert (mixed.durability, mixed.source, 'offered different QoS' in note) == ('volatile', 'default', True)
+    assert qos(7, latched, use_recorded=False)[0] == PlayQos()
+    overrides = parse_topic_qos(['/t:=transient_local', '/u:= Best_Effort, depth=5'])
+    assert overrides == {
+        '/t': {'durability': 'transient_local'},
+        '/u': {'reliability': 'best_effort', 'depth': 5},
+    }
+    assert qos(7, override=overrides['/t'])[0] == PlayQos('reliable', 'transient_local', 7, 'override')
+    assert qos(7, latched, override=overrides['/u'])[0] == PlayQos(
+        'best_effort', 'transient_local', 5, 'override'
+    )
+    for bad in ('/t', '/t:=', ':=reliable', '/t:=latched', '/t:=depth=0', '/t:=reliable,depth=x'):
+        with pytest.raises(ValueError, match='parameter topic_qos'):
+            parse_topic_qos([bad])
+
+
+def test_transient_local_topics_reach_a_late_subscriber(ros_env, ros, tmp_path):
+    """A bag with keyframe-like topics recorded reliable + transient local (one as if latched, depth 1)
+    and a volatile query topic: a ``model_qos`` subscriber created after playback gets every message."""
+    path = tmp_path / 'model'
+    recorded = {
+        '/keyframes/image': (Image, OfferedQos.from_profile(model_qos())),
+        '/keyframes/pose': (PoseStamped, OfferedQos('reliable', 'transient_local', depth=1)),
+        '/novel_view/query': (PoseStamped, OfferedQos('reliable', 'volatile', depth=10)),
+    }
+    with BagWriter(path) as bag:
+        for topic, (cls, qos) in recorded.items():
+            bag.add_topic(topic, msg_utils.flavor.message_typename(cls()), qos)
+        for i in range(5):
+            stamp = SMALL_START_NS + i * 100_000_000
+            header = msg_utils.make_header(stamp, 'camera_optical', flavor='rosbags')
+            bag.write(
+                '/keyframes/image',
+                msg_utils.numpy_to_image(_frame(i), 'rgb8', header, flavor='rosbags'),
+                stamp,
+            )
+            pose = msg_utils.matrix_to_pose_stamped(np.eye(4), stamp_ns=stamp, flavor='rosbags')
+            bag.write('/keyframes/pose', pose, stamp)
+            bag.write('/novel_view/query', pose, stamp)
+    with open_bag(path) as reader:
+        expected = {t: [m.rawdata for m in reader.messages([t])] for t in recorded}
+    types = {t: cls for t, (cls, _) in recorded.items()}
+    durable = ['/keyframes/image', '/keyframes/pose']
+    early = rclpy.create_node('early_subscriber')
+    got_early = _receive(early, types)
+    log = tmp_path / 'player.log'
+    proc = _player(
+        ros_env, log, f'bag:={path}', 'rate:=0.0', 'wait_for_subscribers:=1', 'linger_s:=-1.0',
+        'publish_clock:=false',
+    )  # fmt: skip
+    try:
+        assert _spin_until(early, lambda: all(len(got_early[t]) >= 5 for t in types), 30), log.read_text()
+        # Playback has published everything: a model_qos subscriber joins only now.
+        late = rclpy.create_node('late_subscriber')
+        got_late = _receive(late, {t: types[t] for t in durable}, model_qos())
+        assert _spin_until(late, lambda: all(len(got_late[t]) >= 5 for t in durable), 30), log.read_text()
+        assert proc.poll() is None, 'the player must linger'
+        proc.send_signal(signal.SIGINT)
+    finally:
+        out = _finish(proc, log)
+    assert proc.returncode == 0, out
+    for topic in durable:
+        assert _payloads(got_late[topic], expected[topic]) == expected[topic], (
+            f'{topic}: bytes or order differ'
+        )
+    assert (
+        'QoS: /keyframes/image: reliable transient_local depth 1000 (recorded), '
+        '/keyframes/pose: reliable transient_local depth 5 (recorded), '
+        '/novel_view/query: reliable volatile depth 100 (recorded)'
+    ) in out, out

@@ -2,6 +2,7 @@
 
 from ibr_ros.bag.detect import TopicSelection, detect_topics
 from ibr_ros.bag.info import BagInfo, ImageDetails, TopicSummary, bag_info, format_bag_info
+from ibr_ros.bag.qos import OfferedQos
 from ibr_ros.bag.reader import BagMessage, BagReader, Storage, TopicInfo, find_bags, open_bag
 from ibr_ros.bag.typestore import STORE, TYPESTORE, msgtype_of, serialize
 from ibr_ros.bag.writer import BagWriter, Compression
@@ -15,6 +16,7 @@ __all__ = [
     'BagWriter',
     'Compression',
     'ImageDetails',
+    'OfferedQos',
     'Storage',
     'TopicInfo',
     'TopicSelection',

@@ -1,22 +1,29 @@
 """Storage back ends of :mod:`ibr_ros.bag.reader`: rosbags ``AnyReader`` and the ``mcap`` library.
 
 A source yields ``(topic, msgtype, timestamp_ns, data)`` in timestamp order, ``data`` as stored
-(CDR for ROS 2, ROS 1 serialisation for ROS 1 bags), and knows the bag's own type definitions.
+(CDR for ROS 2, ROS 1 serialisation for ROS 1 bags), and knows the bag's own type definitions and
+each topic's recorded offered QoS profiles (a malformed ``offered_qos_profiles`` is ignored with a
+warning: the bag stays readable).
 """
 
 from __future__ import annotations
 
+import importlib
+import logging
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
+from ibr_ros.bag.qos import OfferedQos, parse_offered_qos
 from ibr_ros.bag.typestore import TYPESTORE
 from ibr_ros.errors import BagError
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Iterable, Iterator
     from pathlib import Path
 
     from rosbags.typesys.store import Typestore
@@ -26,6 +33,8 @@ RawMessage = tuple[str, str, int, bytes]
 
 _IDL_SEPARATOR = '=' * 80 + '\n'
 
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class SourceTopic:
@@ -33,6 +42,7 @@ class SourceTopic:
 
     msgtype: str
     count: int
+    offered_qos: tuple[OfferedQos, ...] = ()
 
 
 class Source(Protocol):
@@ -59,7 +69,8 @@ class RosbagsSource:
 
     def __init__(self, path: Path) -> None:
         self._reader = AnyReader([path], default_typestore=TYPESTORE)
-        self._reader.open()
+        with _unparsed_qos():
+            self._reader.open()
         try:
             self.is_ros1 = not self._reader.is2
             self.typestore = self._reader.typestore
@@ -68,7 +79,10 @@ class RosbagsSource:
                 if info.msgtype is None:
                     types = sorted({c.msgtype for c in info.connections})
                     raise BagError(path, f'topic {name} has several message types: {", ".join(types)}')
-                self.topics[name] = SourceTopic(info.msgtype, info.msgcount)
+                recorded = [getattr(c.ext, 'offered_qos_profiles', None) for c in info.connections]
+                self.topics[name] = SourceTopic(
+                    info.msgtype, info.msgcount, _offered_qos(path, name, recorded)
+                )
             self.message_count = self._reader.message_count
             self.start_ns = self._reader.start_time
             self.end_ns = self._reader.end_time - 1  # rosbags' end_time is one past the last message
@@ -142,7 +156,10 @@ class McapSource:
                         path, f'topic {channel.topic} has several message types: {have.msgtype}, {msgtype}'
                     )
                 count = counts.get(cid, 0) + (have.count if have else 0)
-                self.topics[channel.topic] = SourceTopic(msgtype, count)
+                qos = _offered_qos(path, channel.topic, [channel.metadata.get('offered_qos_profiles')])
+                self.topics[channel.topic] = SourceTopic(
+                    msgtype, count, (have.offered_qos if have else ()) + qos
+                )
             self.typestore = _typestore_from_schemas(schemas.values())
         except BaseException:
             self._file.close()
@@ -165,6 +182,66 @@ class McapSource:
 
     def close(self) -> None:
         self._file.close()
+
+
+class _RawQos(list):
+    """Stands in for rosbags' parsed QoS profiles: no profiles, and the stored value as ``raw``."""
+
+    def __init__(self, raw: object) -> None:
+        super().__init__()
+        self.raw = raw
+
+
+_ROSBAGS_QOS_LOCK = threading.Lock()
+
+
+@contextmanager
+def _unparsed_qos() -> Iterator[None]:
+    """While rosbags opens a bag, keep ``offered_qos_profiles`` unparsed (:class:`_RawQos`).
+
+    rosbags' ``parse_qos`` fails the whole bag on a malformed value; here it is parsed per topic by
+    :func:`~ibr_ros.bag.qos.parse_offered_qos`. Only rosbags' reading modules are patched, only for the
+    ``open`` (which reads all connections), under a lock.
+    """
+    modules = []
+    for name in ('reader', 'storage_mcap', 'storage_sqlite3'):
+        try:
+            module = importlib.import_module(f'rosbags.rosbag2.{name}')
+        except ImportError:
+            continue
+        if hasattr(module, 'parse_qos'):
+            modules.append(module)
+    with _ROSBAGS_QOS_LOCK:
+        saved = [(module, module.parse_qos) for module in modules]
+        try:
+            for module in modules:
+                module.parse_qos = _RawQos
+            yield
+        finally:
+            for module, parse in saved:
+                module.parse_qos = parse
+
+
+def _offered_qos(path: Path, topic: str, recorded: Iterable[object]) -> tuple[OfferedQos, ...]:
+    """The profiles of ``topic`` from its connections' stored values; () with a warning if malformed."""
+    profiles: list[OfferedQos] = []
+    try:
+        for value in recorded:
+            if isinstance(value, _RawQos):
+                profiles.extend(parse_offered_qos(value.raw))
+            elif isinstance(value, list):  # parsed by rosbags after all: its Qos tuples
+                profiles.extend(
+                    OfferedQos(
+                        q.reliability.name.lower(), q.durability.name.lower(), q.history.name.lower(), q.depth
+                    )
+                    for q in value
+                )
+            elif value is not None:
+                profiles.extend(parse_offered_qos(value))
+    except (ValueError, AttributeError) as exc:
+        log.warning('%s: topic %s: ignoring its malformed offered_qos_profiles: %s', path, topic, exc)
+        return ()
+    return tuple(profiles)
 
 
 def _typestore_from_schemas(schemas: object) -> Typestore:

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
     from ibr_ros.bag._sources import Source
+    from ibr_ros.bag.qos import OfferedQos
 
 __all__ = ['TYPESTORE', 'BagMessage', 'BagReader', 'Storage', 'TopicInfo', 'find_bags', 'open_bag']
 
@@ -41,12 +42,17 @@ STORAGE_SUFFIXES: dict[str, Storage] = {'.mcap': 'mcap', '.db3': 'sqlite3', '.ba
 
 @dataclass(frozen=True)
 class TopicInfo:
-    """A topic of a bag. ``serialization_format`` is that of :attr:`BagMessage.rawdata`."""
+    """A topic of a bag. ``serialization_format`` is that of :attr:`BagMessage.rawdata`.
+
+    ``offered_qos``: the QoS profiles its recorded publishers offered (rosbag2 ``offered_qos_profiles``;
+    empty where the bag records none, for ROS 1 bags, and where the record is malformed).
+    """
 
     name: str
     msgtype: str
     count: int
     serialization_format: str
+    offered_qos: tuple[OfferedQos, ...] = ()
 
 
 class BagMessage:
@@ -139,7 +145,9 @@ class BagReader:
                 raise BagError(self.path, 'bag contains no messages')
             self._source = source
             self._topics = {
-                name: TopicInfo(name, t.msgtype, t.count, self._codec(t.msgtype).serialization_format)
+                name: TopicInfo(
+                    name, t.msgtype, t.count, self._codec(t.msgtype).serialization_format, t.offered_qos
+                )
                 for name, t in sorted(source.topics.items())
             }
         except BaseException:

@@ -3,25 +3,30 @@
 The ``.mcap`` is written with the ``mcap`` library (rosbags' writer compresses chunks with zstd
 only, at a fixed chunk size): profile ``ros2``, ``ros2msg`` schemas generated from the typestore,
 CDR messages, and the ``rosbag2`` metadata record. ``metadata.yaml`` is rosbag2 version 8, as
-ROS 2 Jazzy writes it. The bag is written next to its target as ``.<name>.tmp-<pid>`` and renamed
-into place when the writer closes without an exception.
+ROS 2 Jazzy writes it. A topic may carry the QoS profile its publisher offered
+(:class:`~ibr_ros.bag.qos.OfferedQos`), stored as ``offered_qos_profiles`` in the channel and in the
+metadata, so that ``ros2 bag play`` and the ``bag_player`` offer it again on replay. The bag is
+written next to its target as ``.<name>.tmp-<pid>`` and renamed into place when the writer closes
+without an exception.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Literal
 
 import yaml
 
 from ibr_ros import __version__
+from ibr_ros.bag.qos import OfferedQos, dump_offered_qos
 from ibr_ros.bag.typestore import TYPESTORE, ros2msg_definition, serialize
 from ibr_ros.errors import BagError
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from types import TracebackType
 
     from mcap.writer import Writer as McapWriter
@@ -41,6 +46,7 @@ DEFAULT_CHUNK_SIZE = 4 * 1024 * 1024
 class _Topic:
     channel_id: int
     msgtype: str
+    qos: tuple[OfferedQos, ...] = field(default_factory=tuple)
     count: int = 0
 
 
@@ -162,17 +168,29 @@ class BagWriter:
 
     # -- writing -----------------------------------------------------------------------------
 
-    def add_topic(self, topic: str, msgtype: str) -> None:
-        """Declare ``topic`` with ``msgtype`` (``pkg/msg/Name``); again with the same type is a no-op.
+    def add_topic(
+        self, topic: str, msgtype: str, qos: OfferedQos | Sequence[OfferedQos] | None = None
+    ) -> None:
+        """Declare ``topic`` with ``msgtype`` (``pkg/msg/Name``) and the QoS profile(s) it was offered with.
+
+        Without ``qos`` the topic records no profile (players use their default). Declaring it again
+        with the same type (and the same ``qos`` or None) is a no-op; :meth:`write` declares topics
+        without QoS, so declare a topic with its QoS before writing to it.
 
         Raises:
-            BagError: The topic has another type, or the type is unknown to the typestore.
+            BagError: The topic has another type or QoS, or the type is unknown to the typestore.
 
         """
         mcap = self._writer()
+        profiles = (qos,) if isinstance(qos, OfferedQos) else tuple(qos or ())
+        if not all(isinstance(q, OfferedQos) for q in profiles):
+            raise TypeError(f'topic {topic}: qos must be OfferedQos profiles, not {qos!r}')
         if (have := self._topics.get(topic)) is not None:
             if have.msgtype != msgtype:
                 raise BagError(self.path, f'topic {topic} is {have.msgtype}, cannot add it as {msgtype}')
+            if qos is not None and profiles != have.qos:
+                offered = ', '.join(map(str, have.qos)) or 'no QoS'
+                raise BagError(self.path, f'topic {topic} is declared with {offered} already')
             return
         if msgtype not in self.typestore.types:
             raise BagError(self.path, f'topic {topic}: unknown message type {msgtype!r}')
@@ -183,9 +201,12 @@ class BagWriter:
                 data=ros2msg_definition(msgtype, self.typestore).encode(),
             )
         channel_id = mcap.register_channel(
-            topic=topic, message_encoding='cdr', schema_id=schema_id, metadata={'offered_qos_profiles': ''}
+            topic=topic,
+            message_encoding='cdr',
+            schema_id=schema_id,
+            metadata={'offered_qos_profiles': dump_offered_qos(profiles)},
         )
-        self._topics[topic] = _Topic(channel_id, msgtype)
+        self._topics[topic] = _Topic(channel_id, msgtype, profiles)
 
     def write(self, topic: str, msg: object, stamp_ns: int) -> None:
         """Write a rosbags or rclpy message object, logged at ``stamp_ns``."""
@@ -231,7 +252,7 @@ class BagWriter:
                         'name': name,
                         'type': t.msgtype,
                         'serialization_format': 'cdr',
-                        'offered_qos_profiles': '',
+                        'offered_qos_profiles': dump_offered_qos(t.qos),
                         'type_description_hash': self.typestore.hash_rihs01(t.msgtype),
                     },
                     'message_count': t.count,

@@ -2,9 +2,20 @@
 
 Reads whatever :func:`ibr_ros.bag.open_bag` reads (rosbag2 directory, ``.mcap``, ``.db3``, ROS 1
 ``.bag``; ROS 1 messages arrive converted to ROS 2 CDR) and publishes every message's serialised
-bytes unchanged on the bag's topic (after ``remap``), reliable with ``qos_depth`` (which reaches best
-effort and reliable subscribers alike). Topics whose type has no Python message class installed, or
-whose data is not Jazzy CDR, are skipped with a warning.
+bytes unchanged on the bag's topic (after ``remap``). Topics whose type has no Python message class
+installed, or whose data is not Jazzy CDR, are skipped with a warning.
+
+QoS per topic (logged at start): reliable (which reaches best effort and reliable subscribers alike)
+and volatile with ``qos_depth``, unless the bag records the QoS its publishers offered (rosbag2's
+``offered_qos_profiles``, which ``ibr process`` and ``ros2 bag record`` write; ``use_recorded_qos``):
+then transient local where they offered it, with a history of the recorded depth or the topic's
+message count if larger, at most ``max_durable_depth``, so that a subscriber that asks for transient
+local (e.g. a ``view_renderer`` for ``keyframes/*``) matches and, joining late, still gets the topic's
+history. Recorded best effort is played reliable all the same; publishers that offered different
+reliability or durability fall back to the default, as in ``ros2 bag play``. ``topic_qos`` overrides
+per bag topic: ``'TOPIC:=POLICY[,POLICY...]'`` with ``reliable``, ``best_effort``, ``volatile``,
+``transient_local``, ``depth=N``. Transient-local history lives as long as the player: ``linger_s``
+keeps it after the bag is done.
 
 Every message is checked before it goes out: a payload that does not decode as its topic's type
 (empty, no CDR header, truncated, lengths past its end, ...) is never published (a 0-byte payload
@@ -34,8 +45,9 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
+from typing import Literal
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
@@ -45,12 +57,13 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
+from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
 import msg_utils
-from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, open_bag
+from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, TopicInfo, open_bag
 from ibr_ros.errors import UserError
 from ibr_ros.nodes.common import BadInput, declare, reliable_qos
 from msg_utils.flavor import message_class
@@ -61,6 +74,92 @@ EXIT_BAD_INPUT = 2
 CDR_HEADERS = (b'\x00\x00', b'\x00\x01')
 
 
+@dataclass(frozen=True)
+class PlayQos:
+    """The QoS a topic is played with, and where it comes from (``default``, ``recorded``, ``override``)."""
+
+    reliability: Literal['reliable', 'best_effort'] = 'reliable'
+    durability: Literal['volatile', 'transient_local'] = 'volatile'
+    depth: int = 100
+    source: str = 'default'
+
+    def profile(self) -> QoSProfile:
+        return QoSProfile(
+            history=QoSHistoryPolicy.KEEP_LAST,
+            depth=self.depth,
+            reliability=QoSReliabilityPolicy.RELIABLE
+            if self.reliability == 'reliable'
+            else QoSReliabilityPolicy.BEST_EFFORT,
+            durability=QoSDurabilityPolicy.TRANSIENT_LOCAL
+            if self.durability == 'transient_local'
+            else QoSDurabilityPolicy.VOLATILE,
+        )
+
+    def __str__(self) -> str:
+        return f'{self.reliability} {self.durability} depth {self.depth} ({self.source})'
+
+
+_POLICY_WORDS = {'reliable', 'best_effort', 'volatile', 'transient_local'}
+
+
+def parse_topic_qos(entries: list[str]) -> dict[str, dict[str, str | int]]:
+    """``['TOPIC:=transient_local,depth=50', ...]`` -> ``{TOPIC: {'durability': ..., 'depth': 50}}``.
+
+    Raises:
+        ValueError: An entry that is not ``TOPIC:=POLICY[,POLICY...]`` with known policies.
+
+    """
+    out: dict[str, dict[str, str | int]] = {}
+    for entry in entries:
+        topic, sep, spec = entry.partition(':=')
+        policies: dict[str, str | int] = {}
+        for word in (w.strip().lower() for w in spec.split(',')):
+            if word in _POLICY_WORDS:
+                policies['reliability' if word in {'reliable', 'best_effort'} else 'durability'] = word
+            elif word.startswith('depth=') and word[6:].isdigit() and int(word[6:]) > 0:
+                policies['depth'] = int(word[6:])
+            else:
+                policies = {}
+                break
+        if not sep or not topic.strip() or not policies:
+            raise ValueError(
+                f"parameter topic_qos: {entry!r} is not of the form 'TOPIC:=POLICY[,POLICY...]' "
+                'with reliable, best_effort, volatile, transient_local, depth=N'
+            )
+        out[topic.strip()] = policies
+    return out
+
+
+def play_qos(
+    info: TopicInfo,
+    *,
+    depth: int,
+    max_durable_depth: int,
+    use_recorded: bool = True,
+    override: dict[str, str | int] | None = None,
+) -> tuple[PlayQos, str]:
+    """The QoS to play ``info``'s topic with (see module docstring) and a note for the log ('' if none)."""
+    qos, notes = PlayQos(depth=depth), []
+    offered = info.offered_qos if use_recorded else ()
+    if len({(q.reliability, q.durability) for q in offered}) > 1:
+        notes.append(f'its publishers offered different QoS ({"; ".join(map(str, offered))}): default')
+    elif offered:
+        durable = offered[0].durability == 'transient_local'
+        qos = replace(qos, durability='transient_local' if durable else 'volatile', source='recorded')
+        if offered[0].reliability == 'best_effort':
+            notes.append('recorded best_effort, played reliable (which reaches best-effort subscribers too)')
+    if override:
+        qos = replace(qos, **{k: v for k, v in override.items() if k != 'depth'}, source='override')  # type: ignore[arg-type]
+    if qos.durability == 'transient_local':
+        wanted = max([info.count, *(q.depth for q in offered)])
+        qos = replace(qos, depth=max(1, min(wanted, max_durable_depth)))
+        if wanted > max_durable_depth:
+            notes.append(f'history of {wanted} capped at max_durable_depth')
+    if override and 'depth' in override:
+        qos = replace(qos, depth=int(override['depth']))
+    return qos, '; '.join(notes)
+
+
 @dataclass
 class _Out:
     """A replayed topic: where it goes and how far it got."""
@@ -68,6 +167,8 @@ class _Out:
     name: str
     publisher: Publisher
     decode: Callable[[bytes], object]  # raises on a payload that is not a message of the topic's type
+    depth: int  # history depth of the publisher
+    durable: bool  # transient local
     count: int = 0
     unacked: int = 0  # upper bound of the messages in the publisher's history
     skipped: Counter[str] = field(default_factory=Counter)  # undecodable payloads by reason
@@ -126,12 +227,20 @@ class BagPlayer(Node):
         n_subs = p('wait_for_subscribers', 0, 'start at this many subscriptions per topic', limits=(0, 1000))
         self.wait_for = int(n_subs)
         self.wait_timeout = float(p('wait_timeout_s', 30.0, '... or after this long; 0 = never', **big))
-        self.depth = int(p('qos_depth', 100, 'history depth of the reliable publishers', limits=(1, 1000000)))
+        self.depth = int(p('qos_depth', 100, 'history depth of the volatile publishers', limits=(1, 1000000)))
+        use_recorded = bool(p('use_recorded_qos', True, 'offer the QoS recorded in the bag'))
+        max_durable = int(p('max_durable_depth', 1000, 'most transient-local history', limits=(1, 1000000)))
+        topic_qos = p('topic_qos', Parameter.Type.STRING_ARRAY, "'TOPIC:=POLICY,...' QoS of bag topics")
+        linger = p(
+            'linger_s', 0.0, 'keep publishers after the end (s); -1 = until shut down', limits=(-1.0, 1e9)
+        )
+        self.linger = float(linger)
         self.ack_timeout = float(p('ack_timeout_s', 10.0, 'longest wait for acknowledgements', **big))
         self.progress_s = float(p('progress_s', 5.0, 'progress log period (s); 0 = off', **big))
         if not self.bag_path:
             raise UserError('parameter bag is required (-p bag:=PATH)')
         remap = parse_remaps(list(remaps or []))
+        overrides = parse_topic_qos(list(topic_qos or []))
 
         self.bag: BagReader = open_bag(self.bag_path).open()  # BagError names the path
         available = self.bag.topics
@@ -140,18 +249,30 @@ class BagPlayer(Node):
             raise UserError(f'{self.bag_path}: no topic {", ".join(missing)} in the bag')
         if unknown := [t for t in remap if t not in wanted]:
             self.get_logger().warning(f'remap of topics that are not played: {", ".join(unknown)}')
+        if unknown := [t for t in overrides if t not in wanted]:
+            self.get_logger().warning(f'topic_qos of topics that are not played: {", ".join(unknown)}')
         self.outs: dict[str, _Out] = {}
         self.bad = BadInput(self)
-        qos = reliable_qos(self.depth)
+        qos_log = []
         for topic in wanted:
             info = available[topic]
             problem = self._unplayable(info.msgtype, info.serialization_format)
             if problem:
                 self.get_logger().warning(f'skipping {topic} ({info.msgtype}): {problem}')
                 continue
+            qos, note = play_qos(
+                info,
+                depth=self.depth,
+                max_durable_depth=max_durable,
+                use_recorded=use_recorded,
+                override=overrides.get(topic),
+            )
+            qos_log.append(f'{topic}: {qos}' + (f'; {note}' if note else ''))
             cls = message_class(info.msgtype)
             name = remap.get(topic, topic)
-            self.outs[topic] = _Out(name, self.create_publisher(cls, name, qos), decoder(info.msgtype, cls))
+            publisher = self.create_publisher(cls, name, qos.profile())
+            durable = qos.durability == 'transient_local'
+            self.outs[topic] = _Out(name, publisher, decoder(info.msgtype, cls), qos.depth, durable)
         if not self.outs:
             raise UserError(f'{self.bag_path}: none of the topics can be played')
         self.clock_pub = (
@@ -174,6 +295,7 @@ class BagPlayer(Node):
             + f' at rate {self.rate:g}'
             + (' (as fast as possible)' if self.rate == 0 else '')
         )
+        self.get_logger().info('QoS: ' + ', '.join(qos_log))
 
     def _unplayable(self, msgtype: str, serialization_format: str) -> str:
         """Why a topic of ``msgtype`` cannot be replayed as is; '' when it can."""
@@ -216,12 +338,24 @@ class BagPlayer(Node):
                     raise UserError(f'{self.bag_path}: pass {passes} published no message; not looping')
             if not self.stopping.is_set():
                 self._wait_acked()
+            self._linger()
         except Exception as exc:  # a shutdown while publishing raises; anything else is logged
             if not self.stopping.is_set() and self.context.ok():
                 self.get_logger().error(f'playback failed: {exc}')
                 self.finished.set_result(EXIT_BAD_INPUT if isinstance(exc, UserError) else 1)
                 return
         self.finished.set_result(0)
+
+    def _linger(self) -> None:
+        """Keep the publishers (and their transient-local history) for ``linger_s`` after the end."""
+        if self.linger == 0 or self.stopping.is_set():
+            return
+        durable = [o.name for o in self.outs.values() if o.durable]
+        how_long = 'until shut down' if self.linger < 0 else f'for {self.linger:g} s'
+        self.get_logger().info(
+            f'lingering {how_long}; history for late subscribers on {", ".join(durable) or "no topic"}'
+        )
+        self.stopping.wait(self.linger if self.linger > 0 else None)
 
     def _wait_for_subscribers(self) -> None:
         if self.wait_for <= 0:
@@ -319,11 +453,11 @@ class BagPlayer(Node):
         """At rate 0: never overwrite a message that a reliable subscriber has not acknowledged.
 
         Fast DDS asks for acknowledgements with every message once the history is full (else every
-        3 s), so waiting when ``qos_depth`` messages may be unacknowledged costs milliseconds.
+        3 s), so waiting when the topic's depth of messages may be unacknowledged costs milliseconds.
         """
-        if out.unacked >= self.depth // 2 and out.publisher.wait_for_all_acked(Duration()):
-            out.unacked = 0  # all acknowledged (and dropped from the history): cheap check, no wait
-        if out.unacked < self.depth:
+        if out.unacked >= out.depth // 2 and out.publisher.wait_for_all_acked(Duration()):
+            out.unacked = 0  # all acknowledged: cheap check, no wait
+        if out.unacked < out.depth:
             return
         if not self._acked(out, self.ack_timeout) and not self.stopping.is_set():
             self.get_logger().warning(
