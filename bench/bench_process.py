@@ -10,6 +10,8 @@ arrive one by one, each refined as soon as it has ``min_neighbours`` neighbours 
 so far, the rest at the end with a flush), timing MVS + refinement per keyframe; the ratio is
 offline / live seconds per refined keyframe. When ``out/logs/depth_refiner.log`` of an earlier
 ``make demo`` exists, its logged per-keyframe times are printed too (another run, other load).
+A bag without poses (e.g. ``--bag bags/brighton_beach --defaults``) runs in SfM mode: the SfM
+statistics are printed and there is no live-schedule baseline (it needs the bag's poses).
 Exits 1 unless every keyframe was refined.
 """
 
@@ -37,7 +39,7 @@ depth_refiner:
     max_neighbours: 2
     flush_after_s: 3.0
 """
-STAGES = ('subsample', 'mvs', 'refine', 'render', 'pipeline', 'write', 'evaluate', 'total')
+STAGES = ('subsample', 'sfm', 'mvs', 'refine', 'render', 'pipeline', 'write', 'evaluate', 'total')
 
 
 def live_schedule_seconds(bag: Path, params: Path | None, max_keyframes: int | None) -> list[float]:
@@ -99,13 +101,15 @@ def main() -> int:
         if not args.defaults:
             params = Path(tmp) / 'demo.yaml'
             params.write_text(DEMO_PARAMS)
-        process_bag(args.bag, Path(tmp) / 'warmup', ProcessOptions(params=params, max_keyframes=3, views=1))
+        warmup = ProcessOptions(params=params, max_keyframes=4, views=1)  # 4: SfM mode's sfm_min_keyframes
+        process_bag(args.bag, Path(tmp) / 'warmup', warmup)
         s = process_bag(
             args.bag,
             Path(tmp) / 'out',
             ProcessOptions(params=params, views=args.views, max_keyframes=args.max_keyframes),
         )
-        live = [] if args.no_live else live_schedule_seconds(args.bag, params, args.max_keyframes)
+        sfm = s.get('sfm')
+        live = [] if args.no_live or sfm else live_schedule_seconds(args.bag, params, args.max_keyframes)
 
     n, t = s['keyframes'], s['timings_s']
     print(f'ibr process {args.bag} ({"config defaults" if args.defaults else "ibr demo parameters"}), '
@@ -114,6 +118,13 @@ def main() -> int:
     print(f'{"stage":<10} {"seconds":>8} {"s/keyframe":>11}')
     for stage in STAGES:
         print(f'{stage:<10} {t[stage]:>8.2f} {t[stage] / n:>11.3f}')
+    if sfm:
+        rms = (sfm['gps'] or {}).get('alignment_rms_m')
+        print(
+            f'SfM ({sfm["why"]}): {sfm["registered"]}/{sfm["keyframes"]} keyframes registered, frame '
+            f'{sfm["frame_id"]}, reprojection error {sfm["mean_reprojection_error_px"]:.2f} px, GPS '
+            f'alignment RMS {"n/a" if rms is None else f"{rms:.2f}"} m, {sfm["seconds"]:.1f} s'
+        )
     if (gt := s.get('ground_truth')) is not None:
         print(
             f'depth median abs rel {gt["depth_median_abs_rel"]:.4f}, '

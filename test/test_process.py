@@ -4,6 +4,11 @@ One small orbit (320x180, 12 frames) with the frame_subsampler's scene depth hin
 (80 m): 4 keyframes, 3 novel views. Checks the output bag with rosbags and the mcap reader, its
 topics, types, counts and stamps, the depth against the exact ground truth, determinism, the
 parameter files and the CLI's errors.
+
+SfM mode: the same flight without its pose topic (6 keyframes, one per 1 s window, registered by
+SfM in the ``sfm`` frame; depth checked against the ground truth after a similarity fit), the
+flight with ``--sfm`` (ground-truth evaluation in the summary), and the real brighton_beach photos
+with GPS (ENU frame; 7 keyframes spread over the flight by ``poseless_interval_s`` 20, ~15 s).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import pytest
 import msg_utils
 from ibr_ros.bag import BagWriter, open_bag
 from ibr_ros.cli.main import main
+from ibr_ros.core.sfm import umeyama
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process import OUT_TOPICS, ProcessOptions, load_params, process_bag
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
@@ -192,7 +198,15 @@ def test_cli_errors(flight, processed, tmp_path, capsys):
 
     no_pose = tmp_path / 'no_pose'
     _copy_topics(flight, no_pose, [TOPICS['image'], TOPICS['camera_info']], 2)
-    assert 'no pose topic' in run(str(no_pose), '--out', str(tmp_path / 'o1'))
+    assert 'at least sfm_min_keyframes = 4' in run(str(no_pose), '--out', str(tmp_path / 'o1'))
+    off = tmp_path / 'off.yaml'
+    off.write_text('depth_refiner:\n  ros__parameters:\n    sfm_mode: "off"\n')
+    assert 'no pose topic' in (err := run(str(no_pose), '--out', str(tmp_path / 'o1'), '--params', str(off)))
+    assert 'sfm_mode is off' in err
+    off.write_text('frame_subsampler:\n  ros__parameters:\n    pose_timeout_s: 0.0\n')
+    assert 'pose_timeout_s is 0' in run(str(no_pose), '--out', str(tmp_path / 'o1'), '--params', str(off))
+    off.write_text('depth_refiner:\n  ros__parameters:\n    sfm_scale: depth\n')
+    assert 'sfm_scale_m must be > 0' in run(str(flight), '--out', str(tmp_path / 'o1'), '--params', str(off))
     no_info = tmp_path / 'no_info'
     _copy_topics(flight, no_info, [TOPICS['image'], TOPICS['pose']], 2)
     assert 'no camera_info topic' in run(str(no_info), '--out', str(tmp_path / 'o2'))
@@ -204,3 +218,112 @@ def test_cli_errors(flight, processed, tmp_path, capsys):
     assert 'no messages' in run(str(empty), '--out', str(tmp_path / 'o5'))
     assert 'exists already' in run(str(flight), '--out', str(processed))
     assert not (tmp_path / 'o1').exists()
+
+
+# ------------------------------------------------------------------------------------ SfM mode
+
+
+def _poses(bag: Path) -> dict[int, np.ndarray]:
+    with open_bag(bag) as reader:
+        return {
+            m.header_stamp_ns: msg_utils.pose_stamped_to_matrix(m.msg)
+            for m in reader.messages([TOPICS['pose']])
+        }
+
+
+@pytest.fixture(scope='module')
+def sfm_processed(flight, params, tmp_path_factory) -> Path:
+    """The flight without its pose topic, processed with the default sfm_mode (auto)."""
+    root = tmp_path_factory.mktemp('sfm')
+    _copy_topics(flight, root / 'no_pose', [TOPICS['image'], TOPICS['camera_info']], 12)
+    out = root / 'run'
+    args = ['process', str(root / 'no_pose'), '--out', str(out), '--params', str(params), '--views', '3']
+    assert main([*args, '--no-progress']) == 0
+    return out
+
+
+def test_sfm_poseless_bag_registered_and_refined(sfm_processed, flight):
+    import json
+
+    summary = json.loads((sfm_processed / 'summary.json').read_text())
+    sfm = summary['sfm']
+    assert summary['topics']['pose'] is None
+    assert sfm['why'] == 'no pose topic'
+    assert sfm['keyframes'] == 6  # 12 frames at 2 fps, the sharpest of every 1 s window
+    assert sfm['registered'] == summary['keyframes'] == summary['refined'] >= 5
+    assert len(sfm['dropped']) == sfm['keyframes'] - sfm['registered']
+    assert (sfm['frame'], sfm['frame_id'], sfm['metric'], sfm['gps']) == ('sfm', 'sfm', False, None)
+    assert sfm['mean_reprojection_error_px'] < 1.0
+    assert summary['views_answered'] == 3
+    msgs = _messages(sfm_processed / 'bag')
+    n = summary['keyframes']
+    per_keyframe = ('image', 'camera_info', 'pose', 'depth', 'depth_info')
+    assert {t: len(v) for t, v in msgs.items()} == {
+        **{t: n for k, (t, _) in OUT_TOPICS.items() if k in per_keyframe},
+        '/novel_view/query': 3, '/novel_view/image': 3, '/novel_view/camera_info': 3,
+    }  # fmt: skip
+    assert {m.header.frame_id for _, m, _ in msgs['/keyframes/pose'] + msgs['/novel_view/query']} == {'sfm'}
+    # SfM's refined camera, undistorted: a pinhole without distortion, the same for every keyframe.
+    cams = [msg_utils.camera_info_to_pinhole(m) for _, m, _ in msgs['/keyframes/camera_info']]
+    assert all(not c.is_distorted and np.allclose(c.k, cams[0].k) for c in cams)
+    assert abs(cams[0].fx / sfm['camera_prior']['fx'] - 1) < 0.05
+    # Gauge of the sfm frame: unit = the distance between the first two keyframes.
+    t_wc = [msg_utils.pose_stamped_to_matrix(m) for _, m, _ in msgs['/keyframes/pose']]
+    assert abs(np.linalg.norm(t_wc[1][:3, 3] - t_wc[0][:3, 3]) - 1.0) < 1e-6
+    # Depth against the ground truth after a similarity fit of the SfM centres to the true ones.
+    truth_poses = _poses(flight)
+    stamps = [s for s, _, _ in msgs['/keyframes/pose']]
+    fit = umeyama(np.array([t[:3, 3] for t in t_wc]), np.array([truth_poses[s][:3, 3] for s in stamps]))
+    scale = float(np.cbrt(np.linalg.det(fit[:3, :3])))
+    gt = GroundTruthRenderer(flight)
+    for (stamp, depth_msg, _), cam in zip(msgs['/keyframes/depth'], cams, strict=True):
+        truth = gt.render(truth_poses[stamp], cam)
+        d = msg_utils.image_to_numpy(depth_msg) * scale
+        ok = np.isfinite(truth.depth) & np.isfinite(d)
+        assert ok.mean() > 0.5
+        assert np.median(np.abs(d[ok] - truth.depth[ok]) / truth.depth[ok]) < 0.1, stamp
+
+
+def test_sfm_forced_on_posed_bag_evaluates_against_its_poses(flight, params, tmp_path):
+    options = ProcessOptions(params=params, sfm=True, max_keyframes=4, views=1)
+    summary = process_bag(flight, tmp_path / 'forced', options)
+    assert summary['sfm']['why'] == '--sfm'
+    assert summary['sfm']['registered'] == summary['refined'] == 4
+    gt = summary['ground_truth']
+    assert gt['sfm_alignment']['rotation_rms_deg'] < 1.0
+    assert gt['sfm_alignment']['centre_rms_m'] < 1.0  # the orbit's keyframes are ~8 m apart
+    assert gt['depth_median_abs_rel'] < 0.1
+    assert 'SfM poses fitted' in (tmp_path / 'forced' / 'summary.md').read_text()
+
+
+def test_sfm_brighton_beach_gps_enu(repo, tmp_path):
+    """Real photos with GPS: registered in ENU metres, poses in frame map, ~40 m depth (nadir at ~40 m)."""
+    import json
+
+    params = tmp_path / 'spread.yaml'
+    params.write_text('frame_subsampler:\n  ros__parameters:\n    poseless_interval_s: 20.0\n')
+    out = tmp_path / 'brighton'
+    args = ['process', str(repo / 'bags' / 'brighton_beach'), '--out', str(out), '--params', str(params)]
+    assert main([*args, '--views', '1', '--no-progress']) in (0, 1)
+    summary = json.loads((out / 'summary.json').read_text())
+    sfm = summary['sfm']
+    keys = ('keyframes', 'registered', 'dropped', 'mean_reprojection_error_px')
+    print('brighton SfM:', {k: sfm[k] for k in keys}, sfm['gps'], summary['timings_s']['total'])
+    assert sfm['keyframes'] == 7
+    assert 5 <= sfm['registered'] == summary['keyframes']
+    assert (sfm['frame'], sfm['frame_id'], sfm['metric'], sfm['unit']) == ('enu', 'map', True, 'm')
+    assert sfm['gps']['topic'] == '/gps/fix'
+    assert sfm['gps']['keyframes_with_gps'] == 7
+    assert sfm['gps']['alignment_rms_m'] < 3.0
+    assert sfm['mean_reprojection_error_px'] < 1.0
+    assert 30.0 < sfm['scene_depth_from_sparse_points'] < 50.0
+    assert summary['refined'] >= 3
+    msgs = _messages(out / 'bag')
+    assert {m.header.frame_id for _, m, _ in msgs['/keyframes/pose']} == {'map'}
+    dropped = {int(s) for s in sfm['dropped']}
+    assert not dropped & {s for s, _, _ in msgs['/keyframes/image']}
+    for _, m, _ in msgs['/keyframes/pose']:
+        t_wc = msg_utils.pose_stamped_to_matrix(m)
+        assert t_wc[2, 2] < -0.9  # nadir: the optical axis points down in ENU
+    depth = np.concatenate([msg_utils.image_to_numpy(m).ravel() for _, m, _ in msgs['/keyframes/depth']])
+    assert 30.0 < np.nanmedian(depth) < 50.0

@@ -6,7 +6,13 @@ import argparse
 import contextlib
 from pathlib import Path
 
-UNITS = {'frames': 'frame', 'keyframes': 'keyframe', 'views': 'view', 'previews': 'image'}
+UNITS = {
+    'frames': 'frame',
+    'sfm': 'registration',
+    'keyframes': 'keyframe',
+    'views': 'view',
+    'previews': 'image',
+}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -17,6 +23,9 @@ def run(args: argparse.Namespace) -> int:
         image_topic=args.image_topic,
         info_topic=args.info_topic,
         pose_topic=args.pose_topic,
+        navsat_topic=args.navsat_topic,
+        sfm=args.sfm,
+        gps=args.gps,
         params=Path(args.params) if args.params else None,
         views=args.views,
         width=args.width,
@@ -50,13 +59,28 @@ def register(sub: argparse._SubParsersAction) -> None:
         'refined depth, novel views), PNG previews and a summary',
         description='Keyframe selection, MVS + depth refinement and novel views along the keyframe path, '
         'with the parameters of config/<node>.yaml (frame_subsampler, depth_refiner, view_renderer), '
-        'synchronously in bag-time order: the same input gives the same output.',
+        'synchronously in bag-time order: the same input gives the same output. A bag without poses '
+        "is registered with SfM (the depth_refiner's sfm_mode; GPS from a NavSatFix topic gives ENU "
+        'metres).',
     )
     p.add_argument('bag', help='input bag: ROS 2 bag folder, .mcap, .db3 or ROS 1 .bag')
     p.add_argument('--out', required=True, help='output folder (bag/, previews/, summary.json, summary.md)')
     p.add_argument('--image-topic', help='camera image topic, Image or CompressedImage (default: detected)')
     p.add_argument('--info-topic', help='CameraInfo topic (default: detected)')
     p.add_argument('--pose-topic', help='PoseStamped or Odometry topic (default: detected)')
+    p.add_argument('--navsat-topic', help='NavSatFix topic for SfM mode (default: detected)')
+    p.add_argument(
+        '--sfm',
+        action='store_true',
+        help='SfM mode even if the bag has poses: they are ignored (keyframes every poseless_interval_s, '
+        'poses from SfM; a synthetic bag is then evaluated against them)',
+    )
+    p.add_argument(
+        '--gps',
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help='SfM mode: use NavSatFix (default: yes)',
+    )
     p.add_argument(
         '--params', metavar='FILE', help='ROS 2 params file overriding config/<node>.yaml of the three nodes'
     )

@@ -13,17 +13,39 @@ The same core code as the nodes, run synchronously in bag-time order (determinis
 3. render: :class:`~ibr_ros.core.render.NovelViewRenderer` (the view_renderer's parameters) at
    ``views`` poses along the keyframe path (:func:`ibr_ros.jobs.demo.interpolate_path`).
 
+SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a bag without a
+pose topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm``
+(its poses are then ignored). Keyframes are chosen without poses as the frame_subsampler does
+after ``pose_timeout_s`` (which must be > 0): the sharpest unblurred frame of every
+``poseless_interval_s`` window (:class:`~ibr_ros.core.keyframes.IntervalSelector`). With
+``sfm_mode`` ``always`` on a bag with poses the keyframes are chosen by pose (as live) and their
+poses ignored. Then all keyframes (at least ``sfm_min_keyframes``) are registered together by ONE
+:meth:`~ibr_ros.core.sfm_session.SfmSession.update` (images downscaled to ``sfm_max_side``; no
+incremental updates offline), with GPS positions from the bag's ``NavSatFix`` topic when there is
+one (converted to ENU metres with the first usable fix as origin and interpolated linearly to the
+keyframe stamps, at most :data:`GPS_MAX_GAP_S` from a fix, as ``ibr register`` does). Frame of
+the result: ENU metres (frame_id ``map``) when the model could be aligned to >= 3 GPS positions,
+else the documented ``sfm`` frame (frame_id ``sfm``; unit = the first keyframe baseline, or metres
+with ``sfm_scale`` + ``sfm_scale_m``; without a scale ``depth_range`` and ``scene_depth_m`` are
+ignored, like the node). Unregistered keyframes are dropped (logged, and listed in the summary).
+The registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, possibly an
+initial guess) and are undistorted with it (:func:`~ibr_ros.core.undistort.undistort_image`,
+valid pixels only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
+
 Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 params file
 (sections ``/**``, ``<node>`` or ``/<ns>/<node>``), so live and offline runs agree.
 
 Output folder: ``bag/`` (ROS 2 mcap bag, written atomically) with the graph's topics and types:
-``/keyframes/image`` (rgb8), ``/keyframes/camera_info``, ``/keyframes/pose``, ``/keyframes/depth``
-(32FC1 metres, NaN unknown, REP-118; sky at 2 x the largest MVS depth, Eq. 14),
+``/keyframes/image`` (rgb8; undistorted in SfM mode), ``/keyframes/camera_info``,
+``/keyframes/pose`` (the bag's poses, or SfM's in frame ``map``/``sfm``), ``/keyframes/depth``
+(32FC1 metres or ``sfm`` units, NaN unknown, REP-118; sky at 2 x the largest MVS depth, Eq. 14),
 ``/keyframes/depth/camera_info``, ``/novel_view/query`` (PoseStamped) and, for answered queries,
 ``/novel_view/image`` (rgb8) + ``/novel_view/camera_info`` with the query's stamp (the midpoint of
 its two keyframes' stamps); log time = header stamp. ``previews/*.png``;
-``summary.json`` and ``summary.md`` (counts, timings, seconds per keyframe and, for a synthetic bag
-with ``synth.json``, depth and rephotography errors against the exact ground truth).
+``summary.json`` and ``summary.md`` (counts, timings, seconds per keyframe, the SfM statistics
+and, for a synthetic bag with ``synth.json``, depth and rephotography errors against the exact
+ground truth; in SfM mode only when the bag has poses, after a similarity fit of the SfM camera
+centres to them: depths are scaled by its scale, novel view poses moved by it).
 """
 
 from __future__ import annotations
@@ -35,7 +57,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -47,20 +69,34 @@ import msg_utils
 from ibr_ros.bag import BagReader, BagWriter, detect_topics, open_bag
 from ibr_ros.bag.detect import COMPRESSED_IMAGE, ODOMETRY, POSE_STAMPED
 from ibr_ros.core.camera import CameraError, PinholeCamera
+from ibr_ros.core.geodesy import geodetic_to_enu
 from ibr_ros.core.geometry import GeometryError
-from ibr_ros.core.keyframes import KeyframeConfig, KeyframeSelector, blur_score
+from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.core.schedule import RefineScheduler, ScheduleConfig, parse_depth_range
+from ibr_ros.core.sfm import SfmError, SfmOptions
+from ibr_ros.core.sfm_session import ScaleHint, SfmSession, SfmUpdate
 from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.core.undistort import undistort_image
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.demo import interpolate_path
 from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
+from ibr_ros.jobs.register_bag import interpolate_positions
 from ibr_ros.models import mono_spec, sky_spec
 
-__all__ = ['NODES', 'OUT_TOPICS', 'Keyframe', 'NovelView', 'ProcessOptions', 'load_params', 'process_bag']
+__all__ = [
+    'GPS_MAX_GAP_S',
+    'NODES',
+    'OUT_TOPICS',
+    'Keyframe',
+    'NovelView',
+    'ProcessOptions',
+    'load_params',
+    'process_bag',
+]
 
 LOG = logging.getLogger(__name__)
 
@@ -78,7 +114,11 @@ OUT_TOPICS = {
     'view_info': ('/novel_view/camera_info', 'sensor_msgs/msg/CameraInfo'),
 }
 BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
-#: ``progress(stage, done, total)``; stages ``frames``, ``keyframes``, ``views``, ``previews``.
+#: GPS positions are interpolated to keyframe stamps at most this far from a fix (s; ``ibr register``'s).
+GPS_MAX_GAP_S = 2.0
+SFM_MODES = ('auto', 'always', 'off')
+SFM_SCALES = ('none', 'baseline', 'altitude', 'depth')
+#: ``progress(stage, done, total)``; stages ``frames``, ``sfm``, ``keyframes``, ``views``, ``previews``.
 Progress = Callable[[str, int, int], None]
 
 
@@ -86,8 +126,10 @@ Progress = Callable[[str, int, int], None]
 class ProcessOptions:
     """What ``ibr process`` does besides the node parameters.
 
-    ``image_topic``/``info_topic``/``pose_topic``: None = detect by type. ``params``: ROS 2
-    params file overriding ``config/<node>.yaml``. ``views``: novel views along the keyframe path.
+    ``image_topic``/``info_topic``/``pose_topic``/``navsat_topic``: None = detect by type.
+    ``sfm``: SfM mode even for a bag with poses (they are ignored: keyframes and poses as for a bag
+    without). ``gps``: use the bag's NavSatFix positions in SfM mode. ``params``: ROS 2 params
+    file overriding ``config/<node>.yaml``. ``views``: novel views along the keyframe path.
     ``width``/``height``/``hfov_deg``: output intrinsics of the novel views (None = the
     view_renderer's parameters; those 0 = the last keyframe's). ``max_keyframes``: stop reading
     the bag after this many keyframes. ``threads``: numba/OpenCV threads (None = all cores).
@@ -97,6 +139,9 @@ class ProcessOptions:
     image_topic: str | None = None
     info_topic: str | None = None
     pose_topic: str | None = None
+    navsat_topic: str | None = None
+    sfm: bool = False
+    gps: bool = True
     params: Path | None = None
     views: int = 16
     width: int | None = None
@@ -214,6 +259,12 @@ class _Configs:
     out_size: tuple[int, int, float]  # width, height, hfov_deg; 0 = the last keyframe's
     min_valid: float
     view_frame: str
+    pose_timeout_s: float
+    poseless_interval_s: float
+    sfm_mode: str
+    sfm_min_keyframes: int
+    sfm_max_side: int
+    sfm_scale: ScaleHint | None
 
 
 def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Configs:
@@ -235,8 +286,35 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
             far_ratio=float(dr['far_ratio']),
             mvs=mvs,
         )
-        if str(dr.get('sfm_mode', 'off')) == 'always':
-            raise UserError("depth_refiner sfm_mode 'always': SfM mode is not available in ibr process")
+        sfm_mode, sfm_scale, sfm_scale_m = str(dr['sfm_mode']), str(dr['sfm_scale']), float(dr['sfm_scale_m'])
+        if sfm_mode not in SFM_MODES:
+            raise UserError(
+                f"depth_refiner parameter sfm_mode must be 'auto', 'always' or 'off', got {sfm_mode!r}"
+            )
+        if sfm_scale not in SFM_SCALES:
+            raise UserError(
+                "depth_refiner parameter sfm_scale must be 'none', 'baseline', 'altitude' or 'depth', "
+                f'got {sfm_scale!r}'
+            )
+        if sfm_scale != 'none' and sfm_scale_m <= 0:
+            raise UserError(
+                f'depth_refiner parameter sfm_scale_m must be > 0 with sfm_scale {sfm_scale!r}, '
+                f'got {sfm_scale_m}'
+            )
+        sfm = {
+            'pose_timeout_s': float(fs['pose_timeout_s']),
+            'poseless_interval_s': float(fs['poseless_interval_s']),
+            'sfm_mode': sfm_mode,
+            'sfm_min_keyframes': int(dr['sfm_min_keyframes']),
+            'sfm_max_side': int(dr['sfm_max_side']),
+            'sfm_scale': ScaleHint(sfm_scale, sfm_scale_m) if sfm_scale != 'none' else None,  # type: ignore[arg-type]
+        }
+        if sfm['poseless_interval_s'] <= 0 or sfm['sfm_min_keyframes'] < 3 or sfm['sfm_max_side'] < 0:
+            raise UserError(
+                'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
+                f'sfm_max_side >= 0, got {sfm["poseless_interval_s"]}, {sfm["sfm_min_keyframes"]}, '
+                f'{sfm["sfm_max_side"]}'
+            )
         mono, sky = str(dr['mono']), str(dr['sky'])
         if mono not in ('plane', 'onnx'):
             raise UserError(f"depth_refiner parameter mono must be 'plane' or 'onnx', got {mono!r}")
@@ -278,6 +356,7 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         out_size=size,
         min_valid=float(vr['min_valid_fraction']),
         view_frame=str(vr['frame_id']),
+        **sfm,  # type: ignore[arg-type]
     )
 
 
@@ -286,7 +365,11 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
 
 @dataclass
 class Keyframe:
-    """A selected keyframe: ``stamp`` (ns), rgb8 image, camera, camera-to-world pose, frames, reason."""
+    """A selected keyframe: ``stamp`` (ns), rgb8 image, camera, camera-to-world pose, frames, reason.
+
+    In SfM mode ``t_wc`` is NaN until registered, then SfM's (``pose_frame`` ``map`` or ``sfm``);
+    ``bag_t_wc`` keeps the bag's pose at that stamp, if any (ground truth of a synthetic bag).
+    """
 
     stamp: int
     rgb: np.ndarray
@@ -298,6 +381,7 @@ class Keyframe:
     depth: np.ndarray | None = None  # refined, float32 metres (NaN unknown)
     neighbours: tuple[int, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
+    bag_t_wc: np.ndarray | None = None
 
 
 @dataclass
@@ -306,12 +390,22 @@ class _Subsampled:
     counts: Counter
     bad: Counter
     decisions: Counter
-    topics: dict[str, str]
+    topics: dict[str, str | None]
+    sfm_why: str | None = None  # why SfM mode (None: the bag's poses are used)
+    poseless: bool = False  # keyframes chosen without poses (IntervalSelector)
+    fixes: list[msg_utils.GeoFix] = field(default_factory=list)
+    stopped: bool = False  # at max_keyframes
 
 
-def _select_topics(reader: BagReader, o: ProcessOptions) -> dict[str, str]:
-    """Image, camera_info and pose topics (given or detected by type) and their types."""
-    sel = detect_topics(reader, image=o.image_topic, camera_info=o.info_topic, pose=o.pose_topic)
+def _select_topics(
+    reader: BagReader, o: ProcessOptions, cfg: _Configs
+) -> tuple[dict[str, str | None], str | None]:
+    """Image, camera_info, pose and NavSatFix topics (given or detected by type) and their types, and
+    why SfM mode is used (None: it is not).
+    """
+    sel = detect_topics(
+        reader, image=o.image_topic, camera_info=o.info_topic, pose=o.pose_topic, navsat=o.navsat_topic
+    )
     topics = reader.topics
     where = f'{reader.path}: topics: ' + ', '.join(f'{t.name} ({t.msgtype})' for t in topics.values())
     if sel.image is None:
@@ -320,48 +414,89 @@ def _select_topics(reader: BagReader, o: ProcessOptions) -> dict[str, str]:
         )
     if sel.camera_info is None:
         raise UserError(f'no camera_info topic (sensor_msgs/msg/CameraInfo; --info-topic); {where}')
-    if sel.pose is None:
-        raise UserError(
-            'no pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry; --pose-topic): frames '
-            f"without poses are not refined (the depth_refiner's SfM mode is not available offline); {where}"
-        )
-    if sel.pose_type not in (POSE_STAMPED, ODOMETRY):
+    if sel.pose is not None and sel.pose_type not in (POSE_STAMPED, ODOMETRY):
         raise UserError(
             f'pose topic {sel.pose} is {sel.pose_type}; ibr process reads geometry_msgs/msg/PoseStamped '
             f'or nav_msgs/msg/Odometry; {where}'
         )
-    return {
+    no_pose = 'no pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry; --pose-topic)'
+    if o.sfm:
+        why: str | None = '--sfm'
+    elif sel.pose is None and cfg.sfm_mode == 'off':
+        raise UserError(
+            f'{no_pose} and depth_refiner sfm_mode is off: frames without poses are not refined '
+            f'(sfm_mode auto or --sfm registers them with SfM); {where}'
+        )
+    elif sel.pose is None and cfg.pose_timeout_s <= 0:
+        raise UserError(
+            f'{no_pose} and frame_subsampler pose_timeout_s is 0: it never selects keyframes without poses '
+            f'(set it > 0 or pass --sfm); {where}'
+        )
+    elif sel.pose is None:
+        why = 'no pose topic'
+    else:
+        why = "depth_refiner sfm_mode 'always'" if cfg.sfm_mode == 'always' else None
+    out: dict[str, str | None] = {
         'image': sel.image,
         'camera_info': sel.camera_info,
         'pose': sel.pose,
+        'navsat': sel.navsat if why is not None and o.gps else None,
         'image_type': topics[sel.image].msgtype,
-        'pose_type': str(sel.pose_type),
+        'pose_type': None if sel.pose is None else str(sel.pose_type),
     }
+    return out, why
 
 
 def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress | None) -> _Subsampled:
-    """The frame_subsampler's decisions over the whole bag, in bag-time order."""
+    """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
+    mode, unless ``sfm_mode`` is ``always`` on a bag with poses).
+    """
     counts: Counter = Counter()
     bad: Counter = Counter()
     decisions: Counter = Counter()
     keyframes: list[Keyframe] = []
+    fixes: list[msg_utils.GeoFix] = []
+    bag_poses: dict[int, np.ndarray] = {}
     selector = KeyframeSelector(cfg.keyframes)
 
     def incomplete(detail: str) -> None:
         bad['incomplete'] += 1
         LOG.debug(detail)
 
-    frames = StampAssembler(('image', 'camera_info', 'pose'), cfg.max_pending, incomplete, supersede=True)
+    def keep(
+        stamp: int,
+        image: np.ndarray,
+        camera: PinholeCamera,
+        camera_frame: str,
+        reason: str,
+        pose: tuple[np.ndarray, str] | None,
+    ) -> bool:
+        """Append a keyframe; True when ``max_keyframes`` are there."""
+        t_wc, pose_frame = pose if pose is not None and sfm_why is None else (np.full((4, 4), np.nan), '')
+        bag_pose = pose[0] if pose is not None else bag_poses.get(stamp)
+        keyframes.append(
+            Keyframe(stamp, image, camera, t_wc, camera_frame or 'camera_optical', pose_frame, reason,
+                     bag_t_wc=bag_pose if sfm_why is not None else None)
+        )  # fmt: skip
+        return o.max_keyframes is not None and len(keyframes) >= o.max_keyframes
+
+    stopped = False
     with open_bag(bag) as reader:
-        topics = _select_topics(reader, o)
+        topics, sfm_why = _select_topics(reader, o, cfg)
+        poseless = topics['pose'] is None or o.sfm
+        interval = IntervalSelector(cfg.poseless_interval_s, cfg.keyframes) if poseless else None
+        fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
+        frames = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
         compressed = topics['image_type'] == COMPRESSED_IMAGE
         to_pose = (
             msg_utils.odometry_to_matrix
             if topics['pose_type'] == ODOMETRY
             else msg_utils.pose_stamped_to_matrix
         )
-        n_images = reader.topics[topics['image']].count
-        role = {topics['image']: 'image', topics['camera_info']: 'camera_info', topics['pose']: 'pose'}
+        n_images = reader.topics[str(topics['image'])].count
+        role = {
+            str(topics[k]): k for k in ('image', 'camera_info', 'pose', 'navsat') if topics[k] is not None
+        }
         for m in reader.messages(list(role)):
             field = role[m.topic]
             counts[field] += 1
@@ -381,15 +516,25 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
                     )
                 elif field == 'camera_info':
                     value = (msg.header.frame_id, msg_utils.camera_info_to_pinhole(msg))
+                elif field == 'navsat':
+                    fix = msg_utils.navsatfix_to_fix(msg)
+                    if fix.status >= 0 and math.isfinite(fix.altitude_m):  # as ibr register
+                        fixes.append(fix)
+                    else:
+                        bad['navsat (no fix or altitude)'] += 1
+                    continue
                 else:
                     value = (to_pose(msg), msg.header.frame_id or 'map')
             except BAD_MESSAGE as exc:
                 bad[field] += 1
                 LOG.debug('bad %s message at %d ns: %s', field, stamp, exc)
                 continue
+            if field == 'pose' and poseless:  # ignored, but the ground truth of a synthetic bag
+                bag_poses[stamp] = value[0]  # type: ignore[index]
+                continue
             if (f := frames.put(stamp, field, value)) is None:
                 continue
-            image, (camera_frame, camera), (pose, pose_frame) = f['image'], f['camera_info'], f['pose']
+            image, (camera_frame, camera) = f['image'], f['camera_info']
             if (camera.height, camera.width) != image.shape[:2]:
                 bad['camera_info'] += 1
                 LOG.debug(
@@ -397,29 +542,191 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
                 )
                 continue
             counts['frames'] += 1
-            d = selector.decide(stamp, pose, blur_score(image), cfg.subsampler_scene_depth or None)
-            decisions[d.reason] += 1
-            if not d.keep:
+            if interval is not None:
+                for s, (img, cam, cf) in interval.push(
+                    stamp, blur_score(image), (image, camera, camera_frame)
+                ):
+                    stopped = stopped or keep(s, img, cam, cf, 'sharpest of its window', None)
+                if stopped:
+                    break
                 continue
-            keyframes.append(
-                Keyframe(stamp, image, camera, pose, camera_frame or 'camera_optical', pose_frame, d.reason)
-            )
-            if o.max_keyframes is not None and len(keyframes) >= o.max_keyframes:
+            d = selector.decide(stamp, f['pose'][0], blur_score(image), cfg.subsampler_scene_depth or None)
+            decisions[d.reason] += 1
+            if d.keep and keep(stamp, image, camera, camera_frame, d.reason, f['pose']):
+                stopped = True
                 break
+    if interval is not None:
+        if not stopped:
+            for s, (img, cam, cf) in interval.flush():
+                keep(s, img, cam, cf, 'sharpest of its window', None)
+        decisions.update({'keyframe (sharpest of its window)': len(keyframes), **interval.rejected})
+        decisions['not chosen in its window'] = counts['frames'] - sum(decisions.values())
+        decisions = +decisions  # drop zero counts
+        for k in keyframes:  # poses read after the frame's image
+            if k.bag_t_wc is None and k.stamp in bag_poses:
+                k.bag_t_wc = bag_poses[k.stamp]
     if not keyframes:
-        missing = [k for k in ('image', 'camera_info', 'pose') if not counts[k]]
+        needed = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
+        missing = [k for k in needed if not counts[k]]
         if missing:
             why = f'no {", ".join(missing)} message read'
         elif not counts['frames']:
             why = (
-                'no frame has image, camera_info and pose with identical header stamps '
+                f'no frame has {" and ".join(needed)} with identical header stamps '
                 f'({counts["image"]} images, {counts["camera_info"]} camera_info, {counts["pose"]} poses '
                 f'read; bad or incomplete: {dict(bad) or "none"})'
             )
         else:
             why = f'no keyframe among {counts["frames"]} frames ({dict(decisions)})'
-        raise UserError(f'{bag}: {why} (topics {topics["image"]}, {topics["camera_info"]}, {topics["pose"]})')
-    return _Subsampled(keyframes, counts, bad, decisions, topics)
+        names = ', '.join(str(topics[k]) for k in needed if topics[k] is not None)
+        raise UserError(f'{bag}: {why} (topics {names})')
+    return _Subsampled(keyframes, counts, bad, decisions, topics, sfm_why, poseless, fixes, stopped)
+
+
+# ------------------------------------------------------------------------------------ SfM mode
+
+
+def _gps_enu(
+    fixes: list[msg_utils.GeoFix], stamps: list[int]
+) -> tuple[np.ndarray | None, tuple[float, float, float] | None]:
+    """ENU metres at ``stamps`` (Nx3, NaN unknown) and the origin (the first fix, as ``ibr register``)."""
+    if not fixes:
+        return None, None
+    fixes = sorted(fixes, key=lambda f: f.stamp_ns)
+    origin = (fixes[0].latitude_deg, fixes[0].longitude_deg, fixes[0].altitude_m)
+    lat, lon, alt = (
+        np.array([getattr(f, k) for f in fixes]) for k in ('latitude_deg', 'longitude_deg', 'altitude_m')
+    )
+    enu = np.stack(geodetic_to_enu(lat, lon, alt, origin), axis=1)
+    fix_t = np.array([f.stamp_ns for f in fixes], dtype=np.int64)
+    return interpolate_positions(np.array(stamps, dtype=np.int64), fix_t, enu, GPS_MAX_GAP_S), origin
+
+
+def _camera_dict(cam: PinholeCamera) -> dict[str, object]:
+    return {'width': cam.width, 'height': cam.height, 'fx': cam.fx, 'fy': cam.fy, 'cx': cam.cx, 'cy': cam.cy,
+            'd': cam.d.tolist(), 'distortion_model': cam.distortion_model}  # fmt: skip
+
+
+def _sparse_depth(u: SfmUpdate, stamps: list[int]) -> float | None:
+    """Median over the registered views of the median depth (world units) of the points each observes."""
+    res = u.result
+    per_view = []
+    for i, s in enumerate(stamps):
+        t_wc = u.poses.get(s)
+        if res is None or t_wc is None or i >= len(res.observation_ids) or not len(res.observation_ids[i]):
+            continue
+        z = (u.points[res.observation_ids[i]] - t_wc[:3, 3]) @ t_wc[:3, 2]
+        if (z := z[z > 0]).size:
+            per_view.append(float(np.median(z)))
+    return float(np.median(per_view)) if per_view else None
+
+
+def _register(
+    sub: _Subsampled, cfg: _Configs, threads: int | None, progress: Progress | None
+) -> tuple[list[Keyframe], _Configs, dict[str, object]]:
+    """SfM mode: register all keyframes with ONE :meth:`SfmSession.update`; the registered keyframes
+    (undistorted, with SfM's camera and pose), the configurations to refine them with, and the stats.
+    """
+    keyframes, n = sub.keyframes, len(sub.keyframes)
+    if n < cfg.sfm_min_keyframes:
+        raise UserError(
+            f'SfM mode ({sub.sfm_why}): {n} keyframes, the depth_refiner registers at least '
+            f'sfm_min_keyframes = {cfg.sfm_min_keyframes} (a longer bag, a smaller poseless_interval_s or a '
+            'larger --max-keyframes)'
+        )
+    t0 = time.perf_counter()
+    prior = keyframes[0].camera  # the bag's CameraInfo: SfM's initial intrinsics
+    gps, origin = _gps_enu(sub.fixes, [k.stamp for k in keyframes])
+    session = SfmSession(
+        options=SfmOptions(num_threads=threads) if threads is not None else None,
+        scale_hint=cfg.sfm_scale,
+        max_side=cfg.sfm_max_side,
+        redefine=False,
+    )
+    dropped: dict[int, str] = {}
+    for i, k in enumerate(keyframes):
+        g = gps[i] if gps is not None and np.all(np.isfinite(gps[i])) else None
+        try:
+            session.add(k.stamp, k.rgb, k.camera, g)
+        except SfmError as exc:
+            dropped[k.stamp] = f'not registered: {exc}'
+    if progress is not None:
+        progress('sfm', 0, 1)
+    u = session.update()
+    if progress is not None:
+        progress('sfm', 1, 1)
+    if not u.accepted or u.camera is None:
+        raise UserError(f'SfM mode ({sub.sfm_why}): registration of {n} keyframes failed: {u.reason}')
+    frame_id = 'map' if u.frame == 'enu' else 'sfm'
+    kept: list[Keyframe] = []
+    for k in keyframes:
+        t_wc = u.poses.get(k.stamp)
+        if k.stamp not in dropped and t_wc is None:
+            dropped[k.stamp] = 'not registered by SfM (too few matches with the registered keyframes)'
+        if k.stamp in dropped:
+            LOG.warning('keyframe %d ns dropped: %s', k.stamp, dropped[k.stamp])
+            continue
+        k.rgb, k.camera = undistort_image(k.rgb, u.camera)  # type: ignore[assignment]
+        k.rgb = np.ascontiguousarray(k.rgb)
+        k.t_wc, k.pose_frame = t_wc, frame_id  # type: ignore[assignment]
+        kept.append(k)
+    if not u.metric:
+        schedule = cfg.schedule
+        if schedule.depth_range is not None or schedule.scene_depth_m:
+            LOG.warning(
+                'SfM frame without a scale (set sfm_scale): depth_range and scene_depth_m are ignored'
+            )
+        cfg = replace(cfg, schedule=replace(schedule, depth_range=None, scene_depth_m=0.0))
+    # Better than the scheduler's guess from the optical axes or the keyframe spacing (nadir: 3-6x off).
+    unset = cfg.schedule.depth_range is None and not cfg.schedule.scene_depth_m
+    if (sparse_depth := _sparse_depth(u, session.stamps) if unset else None) is not None:
+        cfg = replace(cfg, schedule=replace(cfg.schedule, scene_depth_m=sparse_depth))
+        LOG.info('SfM mode: scene depth %.3g (median depth of the sparse points) for MVS', sparse_depth)
+    res, a = u.result, (u.result.alignment if u.result is not None else None)
+    unit = 'm' if u.frame == 'enu' else 'm (sfm_scale)' if u.metric else 'first keyframe baseline'
+    LOG.info(
+        'SfM: %d/%d keyframes registered in %.1f s (frame %s, unit %s; reprojection error %.2f px%s)',
+        u.num_registered, n, u.seconds, frame_id, unit,
+        res.mean_reprojection_error_px if res is not None else math.nan,
+        f'; GPS alignment RMS {a.rms_m:.2f} m' if a is not None else '',
+    )  # fmt: skip
+    info: dict[str, object] = {
+        'why': sub.sfm_why,
+        'keyframe_selection': 'sharpest per poseless_interval_s window' if sub.poseless else 'by pose',
+        'keyframes': n,
+        'registered': len(kept),
+        'dropped': {str(s): why for s, why in sorted(dropped.items())},
+        'frame': u.frame,
+        'frame_id': frame_id,
+        'metric': u.metric,
+        'unit': unit,
+        'scale_hint': None
+        if cfg.sfm_scale is None
+        else {'kind': cfg.sfm_scale.kind, 'metres': cfg.sfm_scale.metres},
+        'max_side': cfg.sfm_max_side,
+        'mean_reprojection_error_px': res.mean_reprojection_error_px if res is not None else None,
+        'points': len(u.points),
+        'scene_depth_from_sparse_points': sparse_depth,
+        'matching': res.matching if res is not None else None,
+        'camera_prior': _camera_dict(prior),
+        'camera': _camera_dict(u.camera),
+        'gps': None
+        if gps is None
+        else {
+            'topic': sub.topics['navsat'],
+            'fixes': len(sub.fixes),
+            'keyframes_with_gps': int(np.isfinite(gps[:, 0]).sum()),
+            'enu_origin': list(origin) if origin is not None else None,
+            'max_gap_s': GPS_MAX_GAP_S,
+            'alignment_rms_m': a.rms_m if a is not None else None,
+            'alignment_max_m': a.max_m if a is not None else None,
+            'alignment_inliers': len(a.inliers) if a is not None else None,
+        },
+        'update_s': u.seconds,
+        'timing_s': dict(u.timing),
+        'seconds': time.perf_counter() - t0,
+    }
+    return kept, cfg, info
 
 
 # ------------------------------------------------------------------------------------ refine
@@ -623,27 +930,78 @@ def _label(bgr: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
+def _move(m: np.ndarray, t_wc: np.ndarray) -> np.ndarray:
+    """``t_wc`` moved by the similarity ``m`` (4x4 ``[[s R, t], [0, 1]]``), still rigid."""
+    s = float(np.cbrt(np.linalg.det(m[:3, :3])))
+    out = np.eye(4)
+    out[:3, :3] = m[:3, :3] / s @ t_wc[:3, :3]
+    out[:3, 3] = m[:3, :3] @ t_wc[:3, 3] + m[:3, 3]
+    return out
+
+
+def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, object]] | None:
+    """SfM mode: the similarity from SfM's frame to the bag's poses (ground truth), None without them.
+
+    Rotation from the camera orientations (well determined even for a near-collinear path, where
+    centres alone leave the roll about the path free), then scale and shift from the centres.
+    """
+    pairs = [(k.t_wc, k.bag_t_wc) for k in keyframes if k.bag_t_wc is not None]
+    if len(pairs) < 3 or len(pairs) < len(keyframes):
+        LOG.info('SfM mode: the bag has no poses for all keyframes: no ground-truth evaluation')
+        return None
+    est, ref = (np.array([p[i][:3, 3] for p in pairs]) for i in (0, 1))
+    u, _, vt = np.linalg.svd(sum(g[:3, :3] @ e[:3, :3].T for e, g in pairs))
+    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
+    xs, xd = est - est.mean(0), ref - ref.mean(0)
+    scale = float(np.sum((xs @ r.T) * xd) / max(float(np.sum(xs**2)), 1e-12))
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = scale * r, ref.mean(0) - scale * r @ est.mean(0)
+    rms = float(np.sqrt(np.mean(np.sum((est @ m[:3, :3].T + m[:3, 3] - ref) ** 2, axis=1))))
+    rot = [
+        math.degrees(math.acos(np.clip((np.trace((r @ e[:3, :3]).T @ g[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        for e, g in pairs
+    ]
+    return m, {
+        'scale': scale,
+        'centre_rms_m': rms,
+        'rotation_rms_deg': float(np.sqrt(np.mean(np.square(rot)))),
+    }
+
+
 def _evaluate(
-    bag: Path, keyframes: list[Keyframe], views: list[NovelView], previews: Path, progress: Progress | None
+    bag: Path,
+    keyframes: list[Keyframe],
+    views: list[NovelView],
+    previews: Path,
+    progress: Progress | None,
+    sfm: bool = False,
 ) -> dict[str, object] | None:
-    """Previews, and errors against the exact ground truth when ``bag`` is a synthetic bag."""
+    """Previews, and errors against the exact ground truth when ``bag`` is a synthetic bag (in SfM
+    mode after a similarity fit of SfM's camera centres to the bag's poses, when it has them).
+    """
     from ibr_ros.core.rephoto import score
     from ibr_ros.jobs.synth_bag import GroundTruthRenderer
 
     gt = GroundTruthRenderer(bag) if (bag / 'synth.json').is_file() else None
+    align = _sfm_to_truth(keyframes) if gt is not None and sfm else None
+    if sfm and align is None:
+        gt = None
+    scale = align[1]['scale'] if align is not None else 1.0
     total = len(keyframes) + len(views)
     depth_rows, view_rows = [], []
     for i, k in enumerate(keyframes):
         tiles = [_label(cv2.cvtColor(k.rgb, cv2.COLOR_RGB2BGR), f'keyframe {i}')]
-        truth = gt.render(k.t_wc, k.camera) if gt is not None else None
-        maps = [m for m in (k.depth, truth.depth if truth is not None else None) if m is not None]
+        truth_pose = k.bag_t_wc if align is not None else k.t_wc
+        truth = gt.render(truth_pose, k.camera) if gt is not None and truth_pose is not None else None
+        depth = k.depth * np.float32(scale) if k.depth is not None else None
+        maps = [m for m in (depth, truth.depth if truth is not None else None) if m is not None]
         lo, hi = _depth_limits(*maps) if maps else (1.0, 2.0)
-        if k.depth is not None:
-            tiles.append(_label(colour_depth(k.depth, lo, hi), 'refined depth'))
+        if depth is not None:
+            tiles.append(_label(colour_depth(depth, lo, hi), 'refined depth'))
         if truth is not None:
             tiles.append(_label(colour_depth(truth.depth, lo, hi), 'ground truth'))
-            if k.depth is not None:
-                d = k.depth
+            if depth is not None:
+                d = depth
                 ok = np.isfinite(truth.depth) & ~truth.sky & np.isfinite(d) & (d > 0)
                 rel = np.abs(d[ok] - truth.depth[ok]) / truth.depth[ok]
                 depth_rows.append({
@@ -663,7 +1021,7 @@ def _evaluate(
                 cam = next(
                     (k.camera for k in reversed(keyframes) if k.depth is not None), keyframes[-1].camera
                 )
-            truth = gt.render(v.t_wc, cam)
+            truth = gt.render(_move(align[0], v.t_wc) if align is not None else v.t_wc, cam)
             tiles.append(_label(cv2.cvtColor(truth.rgb, cv2.COLOR_RGB2BGR), 'ground truth'))
             if v.rgb is not None:
                 s = score(truth.rgb, v.rgb, valid_mask=v.valid, patch=7, shift=2)
@@ -689,6 +1047,7 @@ def _evaluate(
         'rephoto_auc_mean': mean(view_rows, 'auc'),
         'rephoto_tail_mean': mean(view_rows, 'tail'),
         'rephoto_completeness_mean': mean(view_rows, 'completeness'),
+        'sfm_alignment': align[1] if align is not None else None,
         'per_keyframe_depth': depth_rows,
         'per_view': view_rows,
     }
@@ -700,22 +1059,41 @@ def _markdown(s: dict) -> str:
     def f(v: object, fmt: str = '.3f') -> str:
         return 'n/a' if v is None else format(v, fmt)
 
+    tp = s['topics']
+    pose = f'{tp["pose"]} ({tp["pose_type"]})' if tp['pose'] else 'no pose topic'
     lines = [
         f'# ibr process on `{s["bag"]}`',
         '',
-        f'- input: {s["topics"]["image"]} ({s["topics"]["image_type"]}), {s["topics"]["camera_info"]}, '
-        f'{s["topics"]["pose"]} ({s["topics"]["pose_type"]})',
+        f'- input: {tp["image"]} ({tp["image_type"]}), {tp["camera_info"]}, {pose}'
+        + (f', {tp["navsat"]} (NavSatFix)' if tp.get('navsat') else ''),
         f'- frames: {s["frames"]["complete"]} complete of {s["frames"]["images"]} images; '
         f'decisions {s["frames"]["decisions"]}; bad or incomplete {s["frames"]["bad"]}',
         f'- keyframes: {s["keyframes"]}, refined: {s["refined"]}; novel views: {s["views_answered"]}/'
         f'{s["views_requested"]} answered',
         f'- output bag: `{s["output"]["bag"]}` ({sum(s["output"]["topics"].values())} messages)',
+    ]
+    if (sfm := s.get('sfm')) is not None:
+        gps = sfm['gps']
+        lines.append(
+            f'- SfM mode ({sfm["why"]}; keyframes {sfm["keyframe_selection"]}): {sfm["registered"]}/'
+            f'{sfm["keyframes"]} keyframes registered, frame `{sfm["frame_id"]}` (unit {sfm["unit"]}), '
+            f'reprojection error {f(sfm["mean_reprojection_error_px"], ".2f")} px, '
+            + (
+                'no GPS'
+                if gps is None
+                else f'GPS for {gps["keyframes_with_gps"]} keyframes, alignment RMS '
+                f'{f(gps["alignment_rms_m"], ".2f")} m'
+            )
+            + f'; {sfm["seconds"]:.1f} s'
+        )
+    lines += [
         '',
         '| stage | seconds | seconds per keyframe |',
         '| --- | --- | --- |',
     ]
     for stage in (
         'subsample',
+        *(('sfm',) if s.get('sfm') is not None else ()),
         'schedule',
         'mvs',
         'refine',
@@ -730,7 +1108,14 @@ def _markdown(s: dict) -> str:
         lines += [
             '',
             f'- refined depth vs ground truth: median abs rel {f(gt["depth_median_abs_rel"], ".4f")} '
-            f'(median over keyframes), coverage {f(gt["depth_coverage_mean"], ".2f")}',
+            f'(median over keyframes), coverage {f(gt["depth_coverage_mean"], ".2f")}'
+            + (
+                f" (SfM poses fitted to the bag's: scale {gt['sfm_alignment']['scale']:.4g}, centre RMS "
+                f'{gt["sfm_alignment"]["centre_rms_m"]:.3f} m, rotation RMS '
+                f'{gt["sfm_alignment"]["rotation_rms_deg"]:.2f} deg)'
+                if gt.get('sfm_alignment')
+                else ''
+            ),
             f'- novel views vs ground truth (7x7, shift 2): mean AUC {f(gt["rephoto_auc_mean"], ".2f")}, '
             f'mean worst-1% {f(gt["rephoto_tail_mean"], ".2f")}, completeness '
             f'{f(gt["rephoto_completeness_mean"], ".2f")}',
@@ -766,6 +1151,10 @@ def process_bag(
     sub = _subsample(bag, cfg, o, progress)
     keyframes = sub.keyframes
     t_sub = time.perf_counter()
+    sfm_info = None
+    if sub.sfm_why is not None:
+        keyframes, cfg, sfm_info = _register(sub, cfg, o.threads, progress)
+    t_sfm = time.perf_counter()
     refine_info = _refine_all(keyframes, cfg, progress)
     t_ref = time.perf_counter()
     views, render_info = _render_all(keyframes, cfg, o.views, progress)
@@ -778,7 +1167,7 @@ def process_bag(
     previews.mkdir(exist_ok=True)
     for old in previews.glob('*.png'):  # a previous run's previews would mix with these
         old.unlink()
-    gt = _evaluate(bag, keyframes, views, previews, progress)
+    gt = _evaluate(bag, keyframes, views, previews, progress, sfm=sfm_info is not None)
     t_eval = time.perf_counter()
 
     refined = [k for k in keyframes if k.depth is not None]
@@ -786,9 +1175,10 @@ def process_bag(
     refine_s = sum(k.timings_s.get('refine', 0.0) for k in keyframes)
     timings = {
         'subsample': t_sub - t_start,
+        'sfm': t_sfm - t_sub,
         'mvs': mvs_s,
         'refine': refine_s,
-        'schedule': (t_ref - t_sub) - mvs_s - refine_s,
+        'schedule': (t_ref - t_sfm) - mvs_s - refine_s,
         'render': t_render - t_ref,
         'write': t_write - t_render,
         'pipeline': t_write - t_start,
@@ -809,8 +1199,9 @@ def process_bag(
             'complete': sub.counts['frames'],
             'decisions': dict(sorted(sub.decisions.items())),
             'bad': dict(sorted(sub.bad.items())),
-            'stopped_at_max_keyframes': o.max_keyframes is not None and n >= o.max_keyframes,
+            'stopped_at_max_keyframes': sub.stopped,
         },
+        'sfm': sfm_info,
         'keyframes': n,
         'refined': len(refined),
         'refine': refine_info,
