@@ -72,6 +72,10 @@ def test_output_bag_topics_counts_and_stamps(processed):
     msgs = _messages(processed / 'bag')
     with open_bag(processed / 'bag') as reader:
         assert {t: i.msgtype for t, i in reader.topics.items()} == dict(OUT_TOPICS.values())
+        # recorded as the graph offers them, so bag_player replays keyframes to late-joining renderers
+        durability = {t: {q.durability for q in i.offered_qos} for t, i in reader.topics.items()}
+    expected = {t: {'transient_local' if t.startswith('/keyframes/') else 'volatile'} for t in durability}
+    assert durability == expected
     counts = {t: len(v) for t, v in msgs.items()}
     keyframe_topics = [
         t for k, (t, _) in OUT_TOPICS.items() if k in ('image', 'camera_info', 'pose', 'depth', 'depth_info')

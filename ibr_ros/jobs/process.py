@@ -66,10 +66,9 @@ import numpy as np
 import yaml
 
 import msg_utils
-from ibr_ros.bag import BagReader, BagWriter, detect_topics, open_bag
+from ibr_ros.bag import BagReader, BagWriter, OfferedQos, detect_topics, open_bag
 from ibr_ros.bag.detect import COMPRESSED_IMAGE, ODOMETRY, POSE_STAMPED
 from ibr_ros.core.camera import CameraError, PinholeCamera
-from ibr_ros.core.geodesy import geodetic_to_enu
 from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
 from ibr_ros.core.mono import MonoModelError
@@ -84,7 +83,7 @@ from ibr_ros.core.undistort import undistort_image
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.demo import interpolate_path
 from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
-from ibr_ros.jobs.register_bag import interpolate_positions
+from ibr_ros.jobs.register_bag import fixes_to_enu
 from ibr_ros.models import mono_spec, sky_spec
 
 __all__ = [
@@ -103,6 +102,11 @@ LOG = logging.getLogger(__name__)
 #: The nodes whose parameters ``ibr process`` reads.
 NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
 #: Output topics (fully qualified: what the graph's relative names resolve to in the root namespace).
+#: QoS the graph's publishers offer (ibr_ros.nodes.common.model_qos / reliable_qos), recorded per topic
+#: so that bag_player and ros2 bag play offer it again (a late-joining renderer gets the whole model).
+MODEL_QOS = OfferedQos('reliable', 'transient_local', depth=1000)
+REPLY_QOS = OfferedQos('reliable', 'volatile', depth=10)
+
 OUT_TOPICS = {
     'image': ('/keyframes/image', 'sensor_msgs/msg/Image'),
     'camera_info': ('/keyframes/camera_info', 'sensor_msgs/msg/CameraInfo'),
@@ -586,22 +590,6 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
 # ------------------------------------------------------------------------------------ SfM mode
 
 
-def _gps_enu(
-    fixes: list[msg_utils.GeoFix], stamps: list[int]
-) -> tuple[np.ndarray | None, tuple[float, float, float] | None]:
-    """ENU metres at ``stamps`` (Nx3, NaN unknown) and the origin (the first fix, as ``ibr register``)."""
-    if not fixes:
-        return None, None
-    fixes = sorted(fixes, key=lambda f: f.stamp_ns)
-    origin = (fixes[0].latitude_deg, fixes[0].longitude_deg, fixes[0].altitude_m)
-    lat, lon, alt = (
-        np.array([getattr(f, k) for f in fixes]) for k in ('latitude_deg', 'longitude_deg', 'altitude_m')
-    )
-    enu = np.stack(geodetic_to_enu(lat, lon, alt, origin), axis=1)
-    fix_t = np.array([f.stamp_ns for f in fixes], dtype=np.int64)
-    return interpolate_positions(np.array(stamps, dtype=np.int64), fix_t, enu, GPS_MAX_GAP_S), origin
-
-
 def _camera_dict(cam: PinholeCamera) -> dict[str, object]:
     return {'width': cam.width, 'height': cam.height, 'fx': cam.fx, 'fy': cam.fy, 'cx': cam.cx, 'cy': cam.cy,
             'd': cam.d.tolist(), 'distortion_model': cam.distortion_model}  # fmt: skip
@@ -636,7 +624,7 @@ def _register(
         )
     t0 = time.perf_counter()
     prior = keyframes[0].camera  # the bag's CameraInfo: SfM's initial intrinsics
-    gps, origin = _gps_enu(sub.fixes, [k.stamp for k in keyframes])
+    gps, origin = fixes_to_enu(sub.fixes, np.array([k.stamp for k in keyframes], np.int64), GPS_MAX_GAP_S)
     session = SfmSession(
         options=SfmOptions(num_threads=threads) if threads is not None else None,
         scale_hint=cfg.sfm_scale,
@@ -892,7 +880,7 @@ def _write_bag(
     counts: Counter = Counter()
     with BagWriter(path, overwrite=overwrite) as writer:
         for name, msgtype in OUT_TOPICS.values():
-            writer.add_topic(name, msgtype)
+            writer.add_topic(name, msgtype, MODEL_QOS if name.startswith('/keyframes/') else REPLY_QOS)
         for stamp, _, key, msg in events:
             writer.write(OUT_TOPICS[key][0], msg, stamp)
             counts[OUT_TOPICS[key][0]] += 1

@@ -25,6 +25,7 @@ from ibr_ros.errors import BagError
 
 __all__ = [
     'BagRegistration',
+    'fixes_to_enu',
     'interpolate_positions',
     'register_bag',
     'registration_to_dict',
@@ -97,6 +98,27 @@ def _fit_camera(camera: PinholeCamera | None, width: int, height: int) -> Pinhol
     return None
 
 
+def fixes_to_enu(
+    fixes: list[msg_utils.GeoFix], stamps_ns: NDArray[np.int64], max_gap_s: float = 2.0
+) -> tuple[NDArray[np.float64] | None, tuple[float, float, float] | None]:
+    """ENU metres (Nx3, NaN unknown) at ``stamps_ns`` from GPS ``fixes``, and the ENU origin.
+
+    The origin is the first fix in time (latitude, longitude in degrees, altitude in metres);
+    positions are interpolated linearly in time (:func:`interpolate_positions`). ``(None, None)``
+    without fixes. Callers filter fixes without a fix or an altitude.
+    """
+    if not fixes:
+        return None, None
+    fixes = sorted(fixes, key=lambda f: f.stamp_ns)
+    origin = (fixes[0].latitude_deg, fixes[0].longitude_deg, fixes[0].altitude_m)
+    lat, lon, alt = (
+        np.array([getattr(f, k) for f in fixes]) for k in ('latitude_deg', 'longitude_deg', 'altitude_m')
+    )
+    enu = np.stack(geodetic_to_enu(lat, lon, alt, origin), axis=1)
+    fix_t = np.array([f.stamp_ns for f in fixes], dtype=np.int64)
+    return interpolate_positions(np.asarray(stamps_ns, dtype=np.int64), fix_t, enu, max_gap_s), origin
+
+
 def register_bag(
     path: Path | str,
     *,
@@ -150,18 +172,8 @@ def register_bag(
         raise BagError(path, f'no messages on {topics.image}')
     stamps_ns = np.array(stamps, dtype=np.int64)
     h, w = images[0].shape[:2]
-    origin, gps = None, None
-    if fixes:
-        fixes.sort(key=lambda f: f.stamp_ns)
-        f0 = fixes[0]
-        origin = (f0.latitude_deg, f0.longitude_deg, f0.altitude_m)
-        lat, lon, alt = (
-            np.array([getattr(f, k) for f in fixes]) for k in ('latitude_deg', 'longitude_deg', 'altitude_m')
-        )
-        enu = np.stack(geodetic_to_enu(lat, lon, alt, origin), axis=1)
-        gps = interpolate_positions(
-            stamps_ns, np.array([f.stamp_ns for f in fixes], dtype=np.int64), enu, max_gps_gap_s
-        )
+    gps, origin = fixes_to_enu(fixes, stamps_ns, max_gps_gap_s)
+    if gps is not None:
         LOG.info('%d of %d images have a GPS position', int(np.isfinite(gps[:, 0]).sum()), len(images))
     result = register_images(
         images, camera=_fit_camera(camera, w, h), gps_enu=gps, workdir=workdir, options=options
