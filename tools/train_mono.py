@@ -204,14 +204,25 @@ def augment(rgb: np.ndarray, depth: np.ndarray, rng: np.random.Generator) -> tup
     return np.ascontiguousarray(x.transpose(2, 0, 1)), np.ascontiguousarray(depth)
 
 
-def load_real(path: Path, min_pixels: int = 500) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Real photos with sparse MVS depth (npz of ``tools/real_mvs_data.py``) that have ``min_pixels``."""
+def load_real(
+    path: Path, views: slice = slice(None), min_pixels: int = 500
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Photos ``views`` with sparse MVS depth (npz of ``tools/real_mvs_data.py``), ``min_pixels`` each."""
     with np.load(path) as z:
-        pairs = [(r, d) for r, d in zip(z['rgb'], z['depth'], strict=True) if (d > 0).sum() >= min_pixels]
+        rgb, depth = z['rgb'][views], z['depth'][views]
+        pairs = [(r, d) for r, d in zip(rgb, depth, strict=True) if (d > 0).sum() >= min_pixels]
     if not pairs:
         raise SystemExit(f'{path}: no view with {min_pixels} MVS pixels')
     LOG.info('real photos: %d views with MVS depth from %s', len(pairs), path)
     return pairs
+
+
+def parse_slice(text: str) -> slice:
+    """``'a:b'`` (either side may be empty) as a slice; ``''`` = everything."""
+    if not text:
+        return slice(None)
+    a, _, b = text.partition(':')
+    return slice(int(a) if a else None, int(b) if b else None)
 
 
 def real_sample(
@@ -280,7 +291,7 @@ def train(args: argparse.Namespace) -> None:
         rgb_all, depth_all = z['rgb'], z['depth']
     n = len(rgb_all)
     LOG.info('training on %d views of %dx%d', n, args.width, args.height)
-    real = load_real(Path(args.real)) if args.real else []
+    real = load_real(Path(args.real), parse_slice(args.real_views)) if args.real else []
     model = build_model()
     LOG.info('parameters: %d', sum(p.numel() for p in model.parameters()))
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
@@ -352,6 +363,7 @@ def train(args: argparse.Namespace) -> None:
         'cycle_steps': args.cycle_steps,
         'real': args.real,
         'real_from_step': args.real_from_step,
+        'real_views': args.real_views,
         'batch': args.batch,
         'views': n,
         'size': [args.width, args.height],
@@ -378,6 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         '--real', help='npz of real photos with MVS depth (tools/real_mvs_data.py): sparse supervision'
     )
     p.add_argument('--real-from-step', type=int, default=0, help='use --real from this step on')
+    p.add_argument('--real-views', default='', help="views of --real to train on, 'a:b' (default: all)")
     p.add_argument('--real-batch', type=int, default=2, help='real photos per step')
     p.add_argument('--real-weight', type=float, default=0.5, help='weight of the real-photo loss')
     p.add_argument('--lr', type=float, default=2e-3)
