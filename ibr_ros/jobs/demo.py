@@ -200,16 +200,17 @@ def run_demo(
         'per_query': results,
     }
     write_atomic(out / 'summary.json', json.dumps(summary, indent=2) + '\n')
+    fmt = lambda key, spec: format(summary[key], spec) if summary[key] is not None else 'n/a'  # noqa: E731
     md = [
         f'# ibr demo on `{bag}`',
         '',
         f'- keyframes: {summary["keyframes"]}, refined: {summary["refined"]} '
         f'(replay + refinement {replay_s:.1f} s)',
-        f'- refined depth vs ground truth: median abs rel {summary["depth_median_abs_rel"]}',
+        f'- refined depth vs ground truth: median abs rel {fmt("depth_median_abs_rel", ".3f")}',
         f'- novel views: {summary["answered"]}/{summary["queries"]} answered, median round trip '
-        f'{summary["query_latency_ms_median"]} ms',
-        f'- rephotography vs ground truth (7x7, shift 2): mean AUC {summary["rephoto_auc_mean"]}, '
-        f'mean worst-1% {summary["rephoto_tail_mean"]}',
+        f'{fmt("query_latency_ms_median", ".1f")} ms',
+        f'- rephotography vs ground truth (7x7, shift 2): mean AUC {fmt("rephoto_auc_mean", ".2f")}, '
+        f'mean worst-1% {fmt("rephoto_tail_mean", ".1f")}',
     ]
     write_atomic(out / 'summary.md', '\n'.join(md) + '\n')
     return summary
