@@ -3,7 +3,8 @@
 The test node publishes every 2nd frame of the bag's first 12 s (CompressedImage + CameraInfo +
 PoseStamped) with malformed messages interleaved (zero quaternion, NaN position, garbage JPEG,
 mismatched camera_info), then checks the keyframes: three topics with identical stamps, a sensible
-count, and a node that is still alive and has logged the rejections.
+count, and a node that is still alive and has logged the rejections. Also: keyframes without poses, and
+``target_keyframes`` + ``expected_path_m`` (the live hint) over the whole shipped flight in-process.
 """
 
 from __future__ import annotations
@@ -157,3 +158,48 @@ def test_keyframes_without_poses(repo):
     assert not blurred & set(stamps)
     assert (got['image'][0].width, got['image'][0].height, got['image'][0].encoding) == (320, 180, 'rgb8')
     assert (got['info'][0].width, got['info'][0].height) == (320, 180)
+
+
+def test_target_baseline():
+    from ibr_ros.nodes.frame_subsampler import target_baseline
+
+    assert target_baseline(0, 0.0) is None  # off
+    assert target_baseline(0, 500.0) is None
+    assert target_baseline(25, 500.0) == 20.0
+    with pytest.raises(ValueError, match='needs expected_path_m > 0'):
+        target_baseline(25, 0.0)
+    with pytest.raises(ValueError, match='>= 0'):
+        target_baseline(-1, 100.0)
+
+
+def test_target_keyframes_live_hint(repo):
+    """``target_keyframes`` 25 + ``expected_path_m`` (the bag's path length): about 25 keyframes over the
+    whole shipped flight, even with a scene depth set (the target's baseline replaces its rule).
+    """
+    from ibr_ros.nodes.frame_subsampler import FrameSubsampler
+
+    frames = shipped_frames(repo, range(200), (160, 90))
+    centres = np.array([f['pose'][:3, 3] for f in frames])
+    path_m = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())  # ~159 m
+    params = {
+        'target_keyframes': 25,
+        'expected_path_m': path_m,
+        'scene_depth_m': 120.0,
+        'pose_timeout_s': 0.0,
+    }
+    with in_process(FrameSubsampler, repo / 'config' / 'frame_subsampler.yaml', **params) as h:
+        node = h.node
+        assert node.config.min_baseline_m == pytest.approx(path_m / 25)
+        assert node.decide_depth is None
+        for f in frames:  # straight into the node's frame assembly (no DDS: fast and deterministic)
+            info = info_msg(f['camera'], f['stamp'])
+            node._put(f['stamp'], 'camera_info', (info, f['camera']))
+            node._put(f['stamp'], 'pose', (f['pose'], 'map'))
+            node._put(f['stamp'], 'image', f['rgb'])
+        assert node.frames_seen == 200
+        assert abs(node.keyframes - 25) <= 2, node.keyframes
+    with (
+        pytest.raises(ValueError, match='needs expected_path_m'),
+        in_process(FrameSubsampler, target_keyframes=25),
+    ):
+        pass

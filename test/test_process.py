@@ -9,6 +9,9 @@ SfM mode: the same flight without its pose topic (6 keyframes, one per 1 s windo
 SfM in the ``sfm`` frame; depth checked against the ground truth after a similarity fit), the
 flight with ``--sfm`` (ground-truth evaluation in the summary), and the real brighton_beach photos
 with GPS (ENU frame; 7 keyframes spread over the flight by ``poseless_interval_s`` 20, ~15 s).
+
+``--target-keyframes``: 10 of the flight's 12 frames by ``select_keyframes`` (refined and rendered), and
+the two passes over a bag with undecodable images.
 """
 
 from __future__ import annotations
@@ -331,3 +334,75 @@ def test_sfm_brighton_beach_gps_enu(repo, tmp_path):
         assert t_wc[2, 2] < -0.9  # nadir: the optical axis points down in ENU
     depth = np.concatenate([msg_utils.image_to_numpy(m).ravel() for _, m, _ in msgs['/keyframes/depth']])
     assert 30.0 < np.nanmedian(depth) < 50.0
+
+
+# ------------------------------------------------------------------------------------ target_keyframes
+
+
+def test_target_keyframes(flight, params, tmp_path):
+    """``--target-keyframes 10`` (over the params file's 3): select_keyframes over the whole 12-frame
+    flight, about 10 keyframes, all refined and rendered; the summary names the selection and its scale.
+    """
+    import json
+
+    params.with_name('target.yaml').write_text(PARAMS + '    target_keyframes: 3\n')
+    out = tmp_path / 'target'
+    args = ['process', str(flight), '--out', str(out), '--params', str(params.with_name('target.yaml'))]
+    assert main([*args, '--target-keyframes', '10', '--views', '2', '--no-progress']) == 0
+    summary = json.loads((out / 'summary.json').read_text())
+    sel, n = summary['keyframe_selection'], summary['keyframes']
+    assert (sel['method'], sel['target'], sel['frames'], sel['selected']) == ('select_keyframes', 10, 12, n)
+    assert abs(n - 10) <= 2
+    assert sel['scale'] < 1.0  # smaller baselines than scene_depth_m 80 x baseline_ratio: more keyframes
+    assert sel['baseline_ratio'] == pytest.approx(0.08 * sel['scale'])
+    assert summary['refined'] == n
+    assert summary['views_answered'] == 2
+    assert sum(summary['frames']['decisions'].values()) == 12
+    assert (
+        f'select_keyframes over the whole flight, target 10: {n} of 12 frames'
+        in (out / 'summary.md').read_text()
+    )
+    # The second pass kept the chosen frames' own images.
+    msgs = _messages(out / 'bag')
+    with open_bag(flight) as reader:
+        jpeg = {m.header_stamp_ns: m.msg for m in reader.messages([TOPICS['image']])}
+    assert len(msgs['/keyframes/image']) == n
+    for stamp, msg, _ in msgs['/keyframes/image']:
+        np.testing.assert_array_equal(
+            msg_utils.image_to_rgb(msg), msg_utils.compressed_image_to_numpy(jpeg[stamp])
+        )
+
+
+def test_target_keyframes_two_passes_skip_bad_images(flight, tmp_path):
+    """The second pass assembles frames as the first (undecodable images included) and decodes only the
+    chosen ones; ``--max-keyframes`` keeps the first of them; a negative target is a user error.
+    """
+    from ibr_ros.jobs.process import _configs, _subsample
+
+    bag = tmp_path / 'garbled'
+    with open_bag(flight) as reader, BagWriter(bag) as writer:
+        images = 0
+        for m in reader.messages([TOPICS['image'], TOPICS['camera_info'], TOPICS['pose']]):
+            images += m.topic == TOPICS['image']
+            if m.topic == TOPICS['image'] and images in (3, 8):
+                m.msg.data = np.frombuffer(b'not a jpeg', np.uint8)
+                writer.write(m.topic, m.msg, m.timestamp_ns)
+            else:
+                writer.write_raw(m.topic, m.msgtype, m.rawdata, m.timestamp_ns)
+    o = ProcessOptions(target_keyframes=6)
+    sub = _subsample(bag, _configs(load_params(), o), o, None)
+    assert sub.bad['image'] == 2
+    assert sub.counts['frames'] == 10
+    assert sub.selection['method'] == 'select_keyframes'
+    assert abs(len(sub.keyframes) - 6) <= 2
+    assert [k.stamp for k in sub.keyframes] == sorted(k.stamp for k in sub.keyframes)
+    with open_bag(flight) as reader:
+        jpeg = {m.header_stamp_ns: m.msg for m in reader.messages([TOPICS['image']])}
+    for k in sub.keyframes:
+        np.testing.assert_array_equal(k.rgb, msg_utils.compressed_image_to_numpy(jpeg[k.stamp]))
+    o = ProcessOptions(target_keyframes=6, max_keyframes=2)
+    first = _subsample(bag, _configs(load_params(), o), o, None)
+    assert [k.stamp for k in first.keyframes] == [k.stamp for k in sub.keyframes[:2]]
+    assert first.stopped
+    with pytest.raises(UserError, match='target_keyframes'):
+        _configs(load_params(), ProcessOptions(target_keyframes=-1))

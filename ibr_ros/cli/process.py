@@ -8,6 +8,7 @@ from pathlib import Path
 
 UNITS = {
     'frames': 'frame',
+    'reread': 'frame',
     'sfm': 'registration',
     'keyframes': 'keyframe',
     'views': 'view',
@@ -32,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
         height=args.height,
         hfov_deg=args.hfov_deg,
         max_keyframes=args.max_keyframes,
+        target_keyframes=args.target_keyframes,
         threads=args.threads,
         overwrite=args.overwrite,
     )
@@ -90,7 +92,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument('--height', type=int, help='novel view height (px)')
     p.add_argument('--hfov-deg', type=float, help='novel view horizontal field of view (deg)')
-    p.add_argument('--max-keyframes', type=int, help='stop reading the bag after this many keyframes')
+    p.add_argument(
+        '--max-keyframes',
+        type=int,
+        help='stop reading the bag after this many keyframes (with a target: the first this many chosen)',
+    )
+    p.add_argument(
+        '--target-keyframes',
+        type=int,
+        metavar='N',
+        help='about N keyframes over the whole flight (bags with poses: the baseline thresholds scaled by '
+        "bisection; default: the frame_subsampler's target_keyframes, 0 = off: frame by frame as live)",
+    )
     p.add_argument('--threads', type=int, help='compute threads (default: all cores)')
     p.add_argument('--overwrite', action='store_true', help='replace an existing OUT/bag')
     p.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bars')

@@ -4,7 +4,15 @@ The same core code as the nodes, run synchronously in bag-time order (determinis
 
 1. subsample: camera image (``Image`` or ``CompressedImage``), ``CameraInfo`` and pose
    (``PoseStamped`` or ``Odometry``) matched by identical header stamps, then blur score +
-   :class:`~ibr_ros.core.keyframes.KeyframeSelector` with the frame_subsampler's parameters;
+   :class:`~ibr_ros.core.keyframes.KeyframeSelector` with the frame_subsampler's parameters, frame
+   by frame as live; or, with its ``target_keyframes`` > 0 (``ProcessOptions.target_keyframes``
+   overrides it) on a bag with poses, :func:`~ibr_ros.core.keyframes.select_keyframes` over the
+   whole flight: the same blur scores, ``KeyframeConfig`` and ``scene_depth_m``, with
+   ``baseline_ratio`` and ``min_baseline_m`` scaled by the common factor that gives about
+   ``target_keyframes`` (the frame_subsampler's ``expected_path_m`` is not used: the flight is
+   known). Two passes over the bag: stamps, poses and blur scores of every frame, then the chosen
+   frames' images (no other image decoded); the summary's ``keyframe_selection`` gives the method,
+   and for a target the count and the scale;
 2. MVS + refine: once the whole flight is known, every keyframe (oldest first) is refined once
    with the neighbours and depth range :class:`~ibr_ros.core.schedule.RefineScheduler` gives it
    (the depth_refiner's policy at the end of a flight), by
@@ -56,7 +64,7 @@ import logging
 import math
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -70,7 +78,14 @@ from ibr_ros.bag import BagReader, BagWriter, OfferedQos, detect_topics, open_ba
 from ibr_ros.bag.detect import COMPRESSED_IMAGE, ODOMETRY, POSE_STAMPED
 from ibr_ros.core.camera import CameraError, PinholeCamera
 from ibr_ros.core.geometry import GeometryError
-from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
+from ibr_ros.core.keyframes import (
+    Decision,
+    IntervalSelector,
+    KeyframeConfig,
+    KeyframeSelector,
+    blur_score,
+    select_keyframes,
+)
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
@@ -122,7 +137,8 @@ BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 GPS_MAX_GAP_S = 2.0
 SFM_MODES = ('auto', 'always', 'off')
 SFM_SCALES = ('none', 'baseline', 'altitude', 'depth')
-#: ``progress(stage, done, total)``; stages ``frames``, ``sfm``, ``keyframes``, ``views``, ``previews``.
+#: ``progress(stage, done, total)``; stages ``frames``, ``reread`` (target_keyframes: the second pass),
+#: ``sfm``, ``keyframes``, ``views``, ``previews``.
 Progress = Callable[[str, int, int], None]
 
 
@@ -136,7 +152,9 @@ class ProcessOptions:
     file overriding ``config/<node>.yaml``. ``views``: novel views along the keyframe path.
     ``width``/``height``/``hfov_deg``: output intrinsics of the novel views (None = the
     view_renderer's parameters; those 0 = the last keyframe's). ``max_keyframes``: stop reading
-    the bag after this many keyframes. ``threads``: numba/OpenCV threads (None = all cores).
+    the bag after this many keyframes (with a target: keep the first this many of the chosen ones).
+    ``target_keyframes``: about this many keyframes over the whole flight (None = the
+    frame_subsampler's parameter; 0 = off). ``threads``: numba/OpenCV threads (None = all cores).
     ``overwrite``: replace an existing ``OUT/bag``.
     """
 
@@ -152,6 +170,7 @@ class ProcessOptions:
     height: int | None = None
     hfov_deg: float | None = None
     max_keyframes: int | None = None
+    target_keyframes: int | None = None
     threads: int | None = None
     overwrite: bool = False
 
@@ -255,6 +274,7 @@ def load_params(params_file: Path | None = None, config: Path | None = None) -> 
 class _Configs:
     keyframes: KeyframeConfig
     subsampler_scene_depth: float
+    target_keyframes: int  # 0 = off (the streaming selector)
     max_pending: int
     schedule: ScheduleConfig
     flush: bool
@@ -349,9 +369,13 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
     )
     if size[0] < 0 or size[1] < 0 or not 0 <= size[2] < 180:
         raise UserError(f'novel view size {size[0]}x{size[1]}, hfov {size[2]} deg: need >= 0 and hfov < 180')
+    target = int(fs['target_keyframes']) if o.target_keyframes is None else o.target_keyframes
+    if target < 0:
+        raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
     return _Configs(
         keyframes=kf,
         subsampler_scene_depth=float(fs['scene_depth_m']),
+        target_keyframes=target,
         max_pending=int(fs['max_pending']),
         schedule=schedule,
         flush=float(dr['flush_after_s']) > 0,
@@ -399,6 +423,160 @@ class _Subsampled:
     poseless: bool = False  # keyframes chosen without poses (IntervalSelector)
     fixes: list[msg_utils.GeoFix] = field(default_factory=list)
     stopped: bool = False  # at max_keyframes
+    selection: dict[str, object] = field(default_factory=dict)  # how the keyframes were chosen
+
+
+@dataclass
+class _Frame:
+    """A complete frame: image (None when not decoded: not wanted), camera, its frame id, pose."""
+
+    stamp: int
+    image: np.ndarray | None
+    camera: PinholeCamera
+    camera_frame: str
+    pose: tuple[np.ndarray, str] | None  # None without poses (SfM mode)
+
+
+@dataclass
+class _Reading:
+    """What one pass of :func:`_frames` counted and collected (``image_ok``: per image message, in bag
+    order, whether it decoded).
+    """
+
+    counts: Counter = field(default_factory=Counter)
+    bad: Counter = field(default_factory=Counter)
+    fixes: list[msg_utils.GeoFix] = field(default_factory=list)
+    bag_poses: dict[int, np.ndarray] = field(default_factory=dict)
+    image_ok: list[bool] = field(default_factory=list)
+
+
+def _frames(
+    reader: BagReader,
+    topics: dict[str, str | None],
+    cfg: _Configs,
+    poseless: bool,
+    reading: _Reading,
+    progress: Progress | None,
+    *,
+    stage: str = 'frames',
+    wanted: set[int] | None = None,
+    decoded: list[bool] | None = None,
+) -> Iterator[_Frame]:
+    """The bag's complete frames in bag-time order: image, camera_info and (unless ``poseless``) pose
+    with identical header stamps, counted into ``reading``.
+
+    ``wanted`` (a second pass): yield only the frames with these stamps and decode only their images;
+    ``decoded`` (the first pass's ``image_ok``) says which other image messages to put undecoded, so
+    that the frames are assembled exactly as in the first pass.
+    """
+    counts, bad = reading.counts, reading.bad
+
+    def incomplete(detail: str) -> None:
+        bad['incomplete'] += 1
+        LOG.debug(detail)
+
+    fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
+    assembler = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
+    compressed = topics['image_type'] == COMPRESSED_IMAGE
+    to_pose = (
+        msg_utils.odometry_to_matrix if topics['pose_type'] == ODOMETRY else msg_utils.pose_stamped_to_matrix
+    )
+    n_images = reader.topics[str(topics['image'])].count
+    role = {str(topics[k]): k for k in ('image', 'camera_info', 'pose', 'navsat') if topics[k] is not None}
+    for m in reader.messages(list(role)):
+        field = role[m.topic]
+        counts[field] += 1
+        if field == 'image' and progress is not None:
+            progress(stage, counts['image'], n_images)
+        msg: Any = m.msg
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        try:
+            if field == 'image':
+                if wanted is not None and stamp not in wanted:
+                    ok = decoded is None or (counts['image'] <= len(decoded) and decoded[counts['image'] - 1])
+                    if not ok:
+                        bad[field] += 1
+                        continue
+                    value: object = None  # not wanted: assembled as in the first pass, not decoded
+                else:
+                    rgb = (
+                        msg_utils.compressed_image_to_numpy(msg)
+                        if compressed
+                        else msg_utils.image_to_rgb(msg)
+                    )
+                    value = np.ascontiguousarray(
+                        np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb
+                    )
+                reading.image_ok.append(True)
+            elif field == 'camera_info':
+                value = (msg.header.frame_id, msg_utils.camera_info_to_pinhole(msg))
+            elif field == 'navsat':
+                fix = msg_utils.navsatfix_to_fix(msg)
+                if fix.status >= 0 and math.isfinite(fix.altitude_m):  # as ibr register
+                    reading.fixes.append(fix)
+                else:
+                    bad['navsat (no fix or altitude)'] += 1
+                continue
+            else:
+                value = (to_pose(msg), msg.header.frame_id or 'map')
+        except BAD_MESSAGE as exc:
+            bad[field] += 1
+            if field == 'image':
+                reading.image_ok.append(False)
+            LOG.debug('bad %s message at %d ns: %s', field, stamp, exc)
+            continue
+        if field == 'pose' and poseless:  # ignored, but the ground truth of a synthetic bag
+            reading.bag_poses[stamp] = value[0]  # type: ignore[index]
+            continue
+        if (f := assembler.put(stamp, field, value)) is None or (wanted is not None and stamp not in wanted):
+            continue
+        image, (camera_frame, camera) = f['image'], f['camera_info']
+        if (camera.height, camera.width) != image.shape[:2]:
+            bad['camera_info'] += 1
+            LOG.debug(
+                'CameraInfo %dx%d does not match the image at %d ns', camera.width, camera.height, stamp
+            )
+            continue
+        counts['frames'] += 1
+        yield _Frame(stamp, image, camera, camera_frame, None if poseless else f['pose'])
+
+
+def _bisection_scale(
+    frames: list[tuple[int, np.ndarray, float]],
+    target: int,
+    config: KeyframeConfig,
+    scene_depth: float | None,
+) -> tuple[float, list[Decision]]:
+    """The baseline scale :func:`~ibr_ros.core.keyframes.select_keyframes` settles on for ``frames``
+    (stamp, pose, blur) and the selector's decisions at that scale: its bisection replayed (it returns
+    the chosen indices only; this costs as much again, ~0.05 s per 200 frames).
+    """
+
+    def run(scale: float) -> list[Decision]:
+        c = replace(
+            config, baseline_ratio=config.baseline_ratio * scale, min_baseline_m=config.min_baseline_m * scale
+        )
+        sel = KeyframeSelector(c)
+        return [sel.decide(s, t_wc, b, scene_depth) for s, t_wc, b in frames]
+
+    def miss(ds: list[Decision]) -> int:
+        return abs(sum(d.keep for d in ds) - target)
+
+    lo, hi = 1e-3, 1e3
+    best_scale, best = 1.0, run(1.0)
+    for _ in range(40):
+        mid = math.sqrt(lo * hi)
+        picked = run(mid)
+        if miss(picked) < miss(best):
+            best_scale, best = mid, picked
+        n = sum(d.keep for d in picked)
+        if n == target:
+            break
+        if n > target:
+            lo = mid
+        else:
+            hi = mid
+    return best_scale, best
 
 
 def _select_topics(
@@ -453,122 +631,109 @@ def _select_topics(
 
 def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress | None) -> _Subsampled:
     """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
-    mode, unless ``sfm_mode`` is ``always`` on a bag with poses).
+    mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
+    :func:`~ibr_ros.core.keyframes.select_keyframes` over the whole flight instead (two passes).
     """
-    counts: Counter = Counter()
-    bad: Counter = Counter()
     decisions: Counter = Counter()
     keyframes: list[Keyframe] = []
-    fixes: list[msg_utils.GeoFix] = []
-    bag_poses: dict[int, np.ndarray] = {}
-    selector = KeyframeSelector(cfg.keyframes)
+    reading = _Reading()
 
-    def incomplete(detail: str) -> None:
-        bad['incomplete'] += 1
-        LOG.debug(detail)
-
-    def keep(
-        stamp: int,
-        image: np.ndarray,
-        camera: PinholeCamera,
-        camera_frame: str,
-        reason: str,
-        pose: tuple[np.ndarray, str] | None,
-    ) -> bool:
+    def keep(frame: _Frame, reason: str) -> bool:
         """Append a keyframe; True when ``max_keyframes`` are there."""
+        pose = frame.pose
         t_wc, pose_frame = pose if pose is not None and sfm_why is None else (np.full((4, 4), np.nan), '')
-        bag_pose = pose[0] if pose is not None else bag_poses.get(stamp)
+        bag_pose = pose[0] if pose is not None else reading.bag_poses.get(frame.stamp)
+        camera_frame = frame.camera_frame or 'camera_optical'
+        image: np.ndarray = frame.image  # type: ignore[assignment]  # decoded: a wanted frame
+        bag_t_wc = bag_pose if sfm_why is not None else None
         keyframes.append(
-            Keyframe(stamp, image, camera, t_wc, camera_frame or 'camera_optical', pose_frame, reason,
-                     bag_t_wc=bag_pose if sfm_why is not None else None)
-        )  # fmt: skip
+            Keyframe(
+                frame.stamp, image, frame.camera, t_wc, camera_frame, pose_frame, reason, bag_t_wc=bag_t_wc
+            )
+        )
         return o.max_keyframes is not None and len(keyframes) >= o.max_keyframes
 
     stopped = False
     with open_bag(bag) as reader:
         topics, sfm_why = _select_topics(reader, o, cfg)
         poseless = topics['pose'] is None or o.sfm
-        interval = IntervalSelector(cfg.poseless_interval_s, cfg.keyframes) if poseless else None
-        fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
-        frames = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
-        compressed = topics['image_type'] == COMPRESSED_IMAGE
-        to_pose = (
-            msg_utils.odometry_to_matrix
-            if topics['pose_type'] == ODOMETRY
-            else msg_utils.pose_stamped_to_matrix
-        )
-        n_images = reader.topics[str(topics['image'])].count
-        role = {
-            str(topics[k]): k for k in ('image', 'camera_info', 'pose', 'navsat') if topics[k] is not None
-        }
-        for m in reader.messages(list(role)):
-            field = role[m.topic]
-            counts[field] += 1
-            if field == 'image' and progress is not None:
-                progress('frames', counts['image'], n_images)
-            msg: Any = m.msg
-            stamp = msg_utils.stamp_to_ns(msg.header.stamp)
-            try:
-                if field == 'image':
-                    rgb = (
-                        msg_utils.compressed_image_to_numpy(msg)
-                        if compressed
-                        else msg_utils.image_to_rgb(msg)
-                    )
-                    value: object = np.ascontiguousarray(
-                        np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb
-                    )
-                elif field == 'camera_info':
-                    value = (msg.header.frame_id, msg_utils.camera_info_to_pinhole(msg))
-                elif field == 'navsat':
-                    fix = msg_utils.navsatfix_to_fix(msg)
-                    if fix.status >= 0 and math.isfinite(fix.altitude_m):  # as ibr register
-                        fixes.append(fix)
-                    else:
-                        bad['navsat (no fix or altitude)'] += 1
-                    continue
-                else:
-                    value = (to_pose(msg), msg.header.frame_id or 'map')
-            except BAD_MESSAGE as exc:
-                bad[field] += 1
-                LOG.debug('bad %s message at %d ns: %s', field, stamp, exc)
-                continue
-            if field == 'pose' and poseless:  # ignored, but the ground truth of a synthetic bag
-                bag_poses[stamp] = value[0]  # type: ignore[index]
-                continue
-            if (f := frames.put(stamp, field, value)) is None:
-                continue
-            image, (camera_frame, camera) = f['image'], f['camera_info']
-            if (camera.height, camera.width) != image.shape[:2]:
-                bad['camera_info'] += 1
-                LOG.debug(
-                    'CameraInfo %dx%d does not match the image at %d ns', camera.width, camera.height, stamp
+        frames = _frames(reader, topics, cfg, poseless, reading, progress)
+        scene_depth = cfg.subsampler_scene_depth or None
+        if poseless:
+            if cfg.target_keyframes:
+                LOG.warning(
+                    'target_keyframes %d ignored: keyframes chosen without poses', cfg.target_keyframes
                 )
-                continue
-            counts['frames'] += 1
-            if interval is not None:
-                for s, (img, cam, cf) in interval.push(
-                    stamp, blur_score(image), (image, camera, camera_frame)
-                ):
-                    stopped = stopped or keep(s, img, cam, cf, 'sharpest of its window', None)
+            selection: dict[str, object] = {'method': 'interval', 'interval_s': cfg.poseless_interval_s}
+            interval = IntervalSelector(cfg.poseless_interval_s, cfg.keyframes)
+            for f in frames:
+                for _, chosen in interval.push(f.stamp, blur_score(f.image), f):  # type: ignore[arg-type]
+                    stopped = stopped or keep(chosen, 'sharpest of its window')
                 if stopped:
                     break
-                continue
-            d = selector.decide(stamp, f['pose'][0], blur_score(image), cfg.subsampler_scene_depth or None)
-            decisions[d.reason] += 1
-            if d.keep and keep(stamp, image, camera, camera_frame, d.reason, f['pose']):
-                stopped = True
-                break
-    if interval is not None:
-        if not stopped:
-            for s, (img, cam, cf) in interval.flush():
-                keep(s, img, cam, cf, 'sharpest of its window', None)
-        decisions.update({'keyframe (sharpest of its window)': len(keyframes), **interval.rejected})
-        decisions['not chosen in its window'] = counts['frames'] - sum(decisions.values())
-        decisions = +decisions  # drop zero counts
-        for k in keyframes:  # poses read after the frame's image
-            if k.bag_t_wc is None and k.stamp in bag_poses:
-                k.bag_t_wc = bag_poses[k.stamp]
+            if not stopped:
+                for _, chosen in interval.flush():
+                    keep(chosen, 'sharpest of its window')
+            decisions.update({'keyframe (sharpest of its window)': len(keyframes), **interval.rejected})
+            decisions['not chosen in its window'] = reading.counts['frames'] - sum(decisions.values())
+            decisions = +decisions  # drop zero counts
+            for k in keyframes:  # poses read after the frame's image
+                if k.bag_t_wc is None and k.stamp in reading.bag_poses:
+                    k.bag_t_wc = reading.bag_poses[k.stamp]
+        elif cfg.target_keyframes:
+            # First pass: stamps, poses and blur scores of every frame; the images are not kept.
+            seen = [(f.stamp, f.pose[0], blur_score(f.image)) for f in frames]  # type: ignore[index, arg-type]
+            t0 = time.perf_counter()
+            picked = select_keyframes(
+                [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
+                target=cfg.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=cfg.keyframes,
+            ) if seen else []  # fmt: skip
+            scale, decided = _bisection_scale(seen, cfg.target_keyframes, cfg.keyframes, scene_depth)
+            replayed = [i for i, d in enumerate(decided) if d.keep]
+            if replayed != picked:  # select_keyframes changed its bisection: its choice stands
+                LOG.warning(
+                    'select_keyframes chose other keyframes than its replayed bisection: scale unknown'
+                )
+                scale = None  # type: ignore[assignment]
+            decisions.update(d.reason for d in decided)
+            reasons = {seen[i][0]: decided[i].reason if scale is not None else 'target' for i in picked}
+            if o.max_keyframes is not None and len(picked) > o.max_keyframes:
+                picked, stopped = picked[: o.max_keyframes], True
+            selection = {
+                'method': 'select_keyframes',
+                'target': cfg.target_keyframes,
+                'frames': len(seen),
+                'selected': len(reasons),
+                'scale': scale,
+                'baseline_ratio': None if scale is None else cfg.keyframes.baseline_ratio * scale,
+                'min_baseline_m': None if scale is None else cfg.keyframes.min_baseline_m * scale,
+                'scene_depth_m': scene_depth,
+                'seconds': time.perf_counter() - t0,
+            }
+            # Second pass: the chosen frames' images (the others are not decoded).
+            wanted = {seen[i][0] for i in picked}
+            again = _frames(
+                reader, topics, cfg, poseless, _Reading(), progress,
+                stage='reread', wanted=wanted, decoded=reading.image_ok,
+            )  # fmt: skip
+            for f in again:
+                keep(f, reasons[f.stamp])
+                if len(keyframes) == len(wanted):
+                    break
+            if len(keyframes) != len(wanted):
+                raise UserError(
+                    f'{bag}: changed while read: {len(keyframes)} of {len(wanted)} keyframes found again'
+                )
+        else:
+            selection = {'method': 'streaming'}
+            selector = KeyframeSelector(cfg.keyframes)
+            for f in frames:
+                d = selector.decide(f.stamp, f.pose[0], blur_score(f.image), scene_depth)  # type: ignore[index, arg-type]
+                decisions[d.reason] += 1
+                if d.keep and keep(f, d.reason):
+                    stopped = True
+                    break
+    counts, bad = reading.counts, reading.bad
     if not keyframes:
         needed = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
         missing = [k for k in needed if not counts[k]]
@@ -584,7 +749,9 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
             why = f'no keyframe among {counts["frames"]} frames ({dict(decisions)})'
         names = ', '.join(str(topics[k]) for k in needed if topics[k] is not None)
         raise UserError(f'{bag}: {why} (topics {names})')
-    return _Subsampled(keyframes, counts, bad, decisions, topics, sfm_why, poseless, fixes, stopped)
+    return _Subsampled(
+        keyframes, counts, bad, decisions, topics, sfm_why, poseless, reading.fixes, stopped, selection
+    )
 
 
 # ------------------------------------------------------------------------------------ SfM mode
@@ -1041,6 +1208,24 @@ def _evaluate(
     }
 
 
+def _selection_line(sel: dict) -> str:
+    """How the keyframes were chosen, for ``summary.md``."""
+    if sel['method'] == 'interval':
+        return f'without poses, the sharpest frame per {sel["interval_s"]:g} s window'
+    if sel['method'] == 'streaming':
+        return 'KeyframeSelector frame by frame (as the live frame_subsampler; no target_keyframes)'
+    scale = (
+        'scale unknown'
+        if sel['scale'] is None
+        else f'baseline scale {sel["scale"]:.3g} (baseline_ratio {sel["baseline_ratio"]:.3g}, '
+        f'min_baseline_m {sel["min_baseline_m"]:.3g})'
+    )
+    return (
+        f'select_keyframes over the whole flight, target {sel["target"]}: {sel["selected"]} of '
+        f'{sel["frames"]} frames, {scale}'
+    )
+
+
 def _markdown(s: dict) -> str:
     t, pk = s['timings_s'], s['seconds_per_keyframe']
 
@@ -1058,6 +1243,7 @@ def _markdown(s: dict) -> str:
         f'decisions {s["frames"]["decisions"]}; bad or incomplete {s["frames"]["bad"]}',
         f'- keyframes: {s["keyframes"]}, refined: {s["refined"]}; novel views: {s["views_answered"]}/'
         f'{s["views_requested"]} answered',
+        f'- keyframe selection: {_selection_line(s["keyframe_selection"])}',
         f'- output bag: `{s["output"]["bag"]}` ({sum(s["output"]["topics"].values())} messages)',
     ]
     if (sfm := s.get('sfm')) is not None:
@@ -1189,6 +1375,7 @@ def process_bag(
             'bad': dict(sorted(sub.bad.items())),
             'stopped_at_max_keyframes': sub.stopped,
         },
+        'keyframe_selection': sub.selection,
         'sfm': sfm_info,
         'keyframes': n,
         'refined': len(refined),

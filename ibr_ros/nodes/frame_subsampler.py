@@ -8,7 +8,21 @@ matched by identical header stamps.
 
 Publishes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image`` rgb8),
 ``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), all three with the
-frame's header stamp. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector`.
+frame's header stamp. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector`: a sharp frame
+becomes a keyframe when the camera moved ``baseline_ratio`` x ``scene_depth_m`` (``min_baseline_m``
+when ``scene_depth_m`` is 0) from the last keyframe, turned ``max_rotation_deg`` or after
+``max_interval_s``.
+
+Target count (``target_keyframes`` > 0): live, the flight's length is unknown, so the node needs
+``expected_path_m``, the planned flight path length in metres (it refuses to start without it), and
+uses ONE baseline threshold of ``expected_path_m / target_keyframes`` metres (:func:`target_baseline`)
+in place of ``baseline_ratio`` x ``scene_depth_m`` and ``min_baseline_m``; the rotation, interval and
+blur rules are unchanged. On a flight of that path length the baseline rule then gives about
+``target_keyframes`` keyframes (the first frame, then one per threshold of straight-line distance;
+at most ``target_keyframes`` + 1): fewer on a shorter flight or a tightly curved path (the chord is
+shorter than the path), more on a longer one or where ``max_rotation_deg`` or ``max_interval_s``
+trigger. ``ibr process`` knows the whole flight and meets the target by bisection instead
+(:func:`ibr_ros.core.keyframes.select_keyframes`; ``expected_path_m`` is not used there).
 
 Without poses: when no pose has ever arrived and a frame's image and camera_info waited
 ``pose_timeout_s`` (wall clock) for its pose, the node selects keyframes without poses from then
@@ -25,6 +39,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -44,6 +59,26 @@ from ibr_ros.nodes.common import (
     size_mismatch,
     subscribe_field,
 )
+
+
+def target_baseline(target_keyframes: int, expected_path_m: float) -> float | None:
+    """The live keyframe baseline (m) for about ``target_keyframes`` over ``expected_path_m`` metres of
+    flight path: ``expected_path_m / target_keyframes``; None when ``target_keyframes`` is 0 (off).
+
+    Raises:
+        ValueError: ``target_keyframes`` < 0, or > 0 without ``expected_path_m`` > 0.
+
+    """
+    if target_keyframes < 0:
+        raise ValueError(f'parameter target_keyframes must be >= 0 (0 = off), got {target_keyframes}')
+    if not target_keyframes:
+        return None
+    if not expected_path_m > 0:
+        raise ValueError(
+            f'parameter target_keyframes {target_keyframes} needs expected_path_m > 0, the planned flight '
+            f'path length in metres (the live node cannot know the flight length), got {expected_path_m}'
+        )
+    return float(expected_path_m) / target_keyframes
 
 
 class FrameSubsampler(Node):
@@ -83,8 +118,25 @@ class FrameSubsampler(Node):
                 limits=(1e-3, 1e6),
             )
         )
+        self.target = int(
+            p('target_keyframes', 0, 'about this many keyframes per flight (needs expected_path_m); 0 = off',
+              limits=(0, 1_000_000))
+        )  # fmt: skip
+        self.expected_path = float(
+            p('expected_path_m', 0.0, 'planned flight path length (m), for target_keyframes', **lim)
+        )
         if self.pose_type not in ('pose', 'odometry'):
             raise ValueError(f"parameter pose_type must be 'pose' or 'odometry', got {self.pose_type!r}")
+        self.baseline = target_baseline(self.target, self.expected_path)
+        # The scene depth the baseline rule uses (None: min_baseline_m).
+        self.decide_depth = self.scene_depth or None
+        if self.baseline is not None:
+            self.config = replace(self.config, min_baseline_m=self.baseline)
+            self.decide_depth = None
+            self.get_logger().info(
+                f'target_keyframes {self.target} over expected_path_m {self.expected_path:g} m: a keyframe '
+                f'every {self.baseline:.3g} m (replaces baseline_ratio x scene_depth_m and min_baseline_m)'
+            )
         self.selector = KeyframeSelector(self.config)
         self.bad = BadInput(self)
         self.frames = StampAssembler(
@@ -153,7 +205,7 @@ class FrameSubsampler(Node):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
-        d = self.selector.decide(stamp, pose, blur_score(image), self.scene_depth or None)
+        d = self.selector.decide(stamp, pose, blur_score(image), self.decide_depth)
         if not d.keep:
             self.get_logger().debug(f'frame {stamp}: skipped ({d.reason})')
             return
