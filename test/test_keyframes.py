@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ from ibr_ros.core.keyframes import (
     KeyframeSelector,
     blur_score,
     select_keyframes,
+    select_keyframes_for_target,
 )
 from ibr_ros.core.synth import SceneConfig, build_scene, flight_camera, make_trajectory, render_view
 
@@ -62,6 +65,15 @@ def test_offline_target_count_on_a_synthetic_flight():
     assert 50 not in picked
     assert picked == sorted(picked)
     assert picked[0] == 0
+    # the same selection with its scale: the streaming selector at that scale picks exactly these
+    chosen = select_keyframes_for_target(stamps, poses, blur, target=25, scene_depth_m=[80.0] * len(samples))
+    assert chosen.indices == picked
+    assert [i for i, d in enumerate(chosen.decisions) if d.keep] == picked
+    cfg = KeyframeConfig()
+    sel = KeyframeSelector(replace(cfg, baseline_ratio=cfg.baseline_ratio * chosen.scale,
+                                   min_baseline_m=cfg.min_baseline_m * chosen.scale))  # fmt: skip
+    again = [i for i in range(len(stamps)) if sel.decide(stamps[i], poses[i], blur[i], 80.0).keep]
+    assert again == picked
 
 
 def test_synthetic_frames_blur_and_bad_config():

@@ -26,8 +26,10 @@ __all__ = [
     'IntervalSelector',
     'KeyframeConfig',
     'KeyframeSelector',
+    'TargetSelection',
     'blur_score',
     'select_keyframes',
+    'select_keyframes_for_target',
 ]
 
 T = TypeVar('T')
@@ -192,7 +194,18 @@ class IntervalSelector(Generic[T]):
         return [(stamp, item)]
 
 
-def select_keyframes(
+@dataclass(frozen=True)
+class TargetSelection:
+    """Result of :func:`select_keyframes_for_target`: the kept frame ``indices`` (in order), the
+    common baseline ``scale`` applied to ``baseline_ratio`` and ``min_baseline_m``, and the
+    selector's decision for every frame at that scale."""
+
+    indices: list[int]
+    scale: float
+    decisions: list[Decision]
+
+
+def select_keyframes_for_target(
     stamps_ns: Sequence[int],
     poses: Sequence[NDArray[np.float64]],
     blur: Sequence[float],
@@ -200,11 +213,12 @@ def select_keyframes(
     target: int = 25,
     scene_depth_m: Sequence[float | None] | None = None,
     config: KeyframeConfig | None = None,
-) -> list[int]:
-    """Offline selection of about ``target`` keyframes from a whole flight (indices, in order).
+) -> TargetSelection:
+    """Offline selection of about ``target`` keyframes from a whole flight.
 
     Runs :class:`KeyframeSelector` with its ``baseline_ratio`` (and ``min_baseline_m``) scaled by a
-    common factor found by bisection so that the count is as close to ``target`` as possible.
+    common factor found by bisection (log scale, 1e-3..1e3) so that the count is as close to
+    ``target`` as possible.
     """
     n = len(stamps_ns)
     if not (len(poses) == len(blur) == n):
@@ -216,24 +230,43 @@ def select_keyframes(
     base = config or KeyframeConfig()
     depths = list(scene_depth_m) if scene_depth_m is not None else [None] * n
 
-    def run(scale: float) -> list[int]:
+    def run(scale: float) -> list[Decision]:
         cfg = replace(
             base, baseline_ratio=base.baseline_ratio * scale, min_baseline_m=base.min_baseline_m * scale
         )
         sel = KeyframeSelector(cfg)
-        return [i for i in range(n) if sel.decide(stamps_ns[i], poses[i], blur[i], depths[i]).keep]
+        return [sel.decide(stamps_ns[i], poses[i], blur[i], depths[i]) for i in range(n)]
+
+    def miss(ds: list[Decision]) -> int:
+        return abs(sum(d.keep for d in ds) - target)
 
     lo, hi = 1e-3, 1e3
-    best = run(1.0)
+    best_scale, best = 1.0, run(1.0)
     for _ in range(40):
         mid = math.sqrt(lo * hi)
         picked = run(mid)
-        if abs(len(picked) - target) < abs(len(best) - target):
-            best = picked
-        if len(picked) == target:
+        if miss(picked) < miss(best):
+            best_scale, best = mid, picked
+        count = sum(d.keep for d in picked)
+        if count == target:
             break
-        if len(picked) > target:
+        if count > target:
             lo = mid
         else:
             hi = mid
-    return best
+    return TargetSelection([i for i, d in enumerate(best) if d.keep], best_scale, best)
+
+
+def select_keyframes(
+    stamps_ns: Sequence[int],
+    poses: Sequence[NDArray[np.float64]],
+    blur: Sequence[float],
+    *,
+    target: int = 25,
+    scene_depth_m: Sequence[float | None] | None = None,
+    config: KeyframeConfig | None = None,
+) -> list[int]:
+    """Indices of about ``target`` keyframes of a whole flight (:func:`select_keyframes_for_target`)."""
+    return select_keyframes_for_target(
+        stamps_ns, poses, blur, target=target, scene_depth_m=scene_depth_m, config=config
+    ).indices

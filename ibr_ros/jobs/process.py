@@ -79,12 +79,12 @@ from ibr_ros.bag.detect import COMPRESSED_IMAGE, ODOMETRY, POSE_STAMPED
 from ibr_ros.core.camera import CameraError, PinholeCamera
 from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.keyframes import (
-    Decision,
     IntervalSelector,
     KeyframeConfig,
     KeyframeSelector,
+    TargetSelection,
     blur_score,
-    select_keyframes,
+    select_keyframes_for_target,
 )
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
@@ -541,44 +541,6 @@ def _frames(
         yield _Frame(stamp, image, camera, camera_frame, None if poseless else f['pose'])
 
 
-def _bisection_scale(
-    frames: list[tuple[int, np.ndarray, float]],
-    target: int,
-    config: KeyframeConfig,
-    scene_depth: float | None,
-) -> tuple[float, list[Decision]]:
-    """The baseline scale :func:`~ibr_ros.core.keyframes.select_keyframes` settles on for ``frames``
-    (stamp, pose, blur) and the selector's decisions at that scale: its bisection replayed (it returns
-    the chosen indices only; this costs as much again, ~0.05 s per 200 frames).
-    """
-
-    def run(scale: float) -> list[Decision]:
-        c = replace(
-            config, baseline_ratio=config.baseline_ratio * scale, min_baseline_m=config.min_baseline_m * scale
-        )
-        sel = KeyframeSelector(c)
-        return [sel.decide(s, t_wc, b, scene_depth) for s, t_wc, b in frames]
-
-    def miss(ds: list[Decision]) -> int:
-        return abs(sum(d.keep for d in ds) - target)
-
-    lo, hi = 1e-3, 1e3
-    best_scale, best = 1.0, run(1.0)
-    for _ in range(40):
-        mid = math.sqrt(lo * hi)
-        picked = run(mid)
-        if miss(picked) < miss(best):
-            best_scale, best = mid, picked
-        n = sum(d.keep for d in picked)
-        if n == target:
-            break
-        if n > target:
-            lo = mid
-        else:
-            hi = mid
-    return best_scale, best
-
-
 def _select_topics(
     reader: BagReader, o: ProcessOptions, cfg: _Configs
 ) -> tuple[dict[str, str | None], str | None]:
@@ -684,19 +646,13 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
             # First pass: stamps, poses and blur scores of every frame; the images are not kept.
             seen = [(f.stamp, f.pose[0], blur_score(f.image)) for f in frames]  # type: ignore[index, arg-type]
             t0 = time.perf_counter()
-            picked = select_keyframes(
+            chosen = select_keyframes_for_target(
                 [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
                 target=cfg.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=cfg.keyframes,
-            ) if seen else []  # fmt: skip
-            scale, decided = _bisection_scale(seen, cfg.target_keyframes, cfg.keyframes, scene_depth)
-            replayed = [i for i, d in enumerate(decided) if d.keep]
-            if replayed != picked:  # select_keyframes changed its bisection: its choice stands
-                LOG.warning(
-                    'select_keyframes chose other keyframes than its replayed bisection: scale unknown'
-                )
-                scale = None  # type: ignore[assignment]
+            ) if seen else TargetSelection([], 1.0, [])  # fmt: skip
+            picked, scale, decided = chosen.indices, chosen.scale, chosen.decisions
             decisions.update(d.reason for d in decided)
-            reasons = {seen[i][0]: decided[i].reason if scale is not None else 'target' for i in picked}
+            reasons = {seen[i][0]: decided[i].reason for i in picked}
             if o.max_keyframes is not None and len(picked) > o.max_keyframes:
                 picked, stopped = picked[: o.max_keyframes], True
             selection = {
@@ -705,8 +661,8 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
                 'frames': len(seen),
                 'selected': len(reasons),
                 'scale': scale,
-                'baseline_ratio': None if scale is None else cfg.keyframes.baseline_ratio * scale,
-                'min_baseline_m': None if scale is None else cfg.keyframes.min_baseline_m * scale,
+                'baseline_ratio': cfg.keyframes.baseline_ratio * scale,
+                'min_baseline_m': cfg.keyframes.min_baseline_m * scale,
                 'scene_depth_m': scene_depth,
                 'seconds': time.perf_counter() - t0,
             }
@@ -1215,9 +1171,7 @@ def _selection_line(sel: dict) -> str:
     if sel['method'] == 'streaming':
         return 'KeyframeSelector frame by frame (as the live frame_subsampler; no target_keyframes)'
     scale = (
-        'scale unknown'
-        if sel['scale'] is None
-        else f'baseline scale {sel["scale"]:.3g} (baseline_ratio {sel["baseline_ratio"]:.3g}, '
+        f'baseline scale {sel["scale"]:.3g} (baseline_ratio {sel["baseline_ratio"]:.3g}, '
         f'min_baseline_m {sel["min_baseline_m"]:.3g})'
     )
     return (
