@@ -1,0 +1,205 @@
+"""``ibr process``: a whole bag through the node graph's pipeline in one process, into an output bag.
+
+The same core code as the nodes, run synchronously in bag-time order (deterministic):
+
+1. subsample: camera image (``Image`` or ``CompressedImage``), ``CameraInfo`` and pose
+   (``PoseStamped`` or ``Odometry``) matched by identical header stamps, then blur score +
+   :class:`~ibr_ros.core.keyframes.KeyframeSelector` with the frame_subsampler's parameters, frame
+   by frame as live; or, with its ``target_keyframes`` > 0 (``ProcessOptions.target_keyframes``
+   overrides it) on a bag with poses, :func:`~ibr_ros.core.keyframes.select_keyframes` over the
+   whole flight: the same blur scores, ``KeyframeConfig`` and ``scene_depth_m``, with
+   ``baseline_ratio`` and ``min_baseline_m`` scaled by the common factor that gives about
+   ``target_keyframes`` (the frame_subsampler's ``expected_path_m`` is not used: the flight is
+   known). Two passes over the bag: stamps, poses and blur scores of every frame, then the chosen
+   frames' images (no other image decoded); the summary's ``keyframe_selection`` gives the method,
+   and for a target the count and the scale;
+2. MVS + refine: once the whole flight is known, every keyframe (oldest first) is refined once
+   with the neighbours and depth range :class:`~ibr_ros.core.schedule.RefineScheduler` gives it
+   (the depth_refiner's policy at the end of a flight), by
+   :func:`~ibr_ros.core.mvs.compute_depth_maps` and
+   :meth:`~ibr_ros.core.refine.DepthRefiner.refine_from_mvs`;
+3. render: :class:`~ibr_ros.core.render.NovelViewRenderer` (the view_renderer's parameters) at
+   ``views`` poses along the keyframe path (:func:`ibr_ros.jobs.demo.interpolate_path`).
+
+SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a bag without a
+pose topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm``
+(its poses are then ignored). Keyframes are chosen without poses as the frame_subsampler does
+after ``pose_timeout_s`` (which must be > 0): the sharpest unblurred frame of every
+``poseless_interval_s`` window (:class:`~ibr_ros.core.keyframes.IntervalSelector`). With
+``sfm_mode`` ``always`` on a bag with poses the keyframes are chosen by pose (as live) and their
+poses ignored. Then all keyframes (at least ``sfm_min_keyframes``) are registered together by ONE
+:meth:`~ibr_ros.core.sfm_session.SfmSession.update` (images downscaled to ``sfm_max_side``; no
+incremental updates offline), with GPS positions from the bag's ``NavSatFix`` topic when there is
+one (converted to ENU metres with the first usable fix as origin and interpolated linearly to the
+keyframe stamps, at most :data:`GPS_MAX_GAP_S` from a fix, as ``ibr register`` does). Frame of
+the result: ENU metres (frame_id ``map``) when the model could be aligned to >= 3 GPS positions,
+else the documented ``sfm`` frame (frame_id ``sfm``; unit = the first keyframe baseline, or metres
+with ``sfm_scale`` + ``sfm_scale_m``; without a scale ``depth_range`` and ``scene_depth_m`` are
+ignored, like the node). Unregistered keyframes are dropped (logged, and listed in the summary).
+The registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, possibly an
+initial guess) and are undistorted with it (:func:`~ibr_ros.core.undistort.undistort_image`,
+valid pixels only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
+
+Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 params file
+(sections ``/**``, ``<node>`` or ``/<ns>/<node>``), so live and offline runs agree.
+
+Output folder: ``bag/`` (ROS 2 mcap bag, written atomically) with the graph's topics and types:
+``/keyframes/image`` (rgb8; undistorted in SfM mode), ``/keyframes/camera_info``,
+``/keyframes/pose`` (the bag's poses, or SfM's in frame ``map``/``sfm``), ``/keyframes/depth``
+(32FC1 metres or ``sfm`` units, NaN unknown, REP-118; sky at 2 x the largest MVS depth, Eq. 14),
+``/keyframes/depth/camera_info``, ``/novel_view/query`` (PoseStamped) and, for answered queries,
+``/novel_view/image`` (rgb8) + ``/novel_view/camera_info`` with the query's stamp (the midpoint of
+its two keyframes' stamps); log time = header stamp. ``previews/*.png``;
+``summary.json`` and ``summary.md`` (counts, timings, seconds per keyframe, the SfM statistics
+and, for a synthetic bag with ``synth.json``, depth and rephotography errors against the exact
+ground truth; in SfM mode only when the bag has poses, after a similarity fit of the SfM camera
+centres to them: depths are scaled by its scale, novel view poses moved by it).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ibr_ros.errors import UserError
+from ibr_ros.jobs.eval_depth import write_atomic
+from ibr_ros.jobs.process.evaluate import _evaluate
+from ibr_ros.jobs.process.frames import Keyframe, _subsample
+from ibr_ros.jobs.process.options import ProcessOptions, Progress
+from ibr_ros.jobs.process.output import OUT_TOPICS, _json_default, _markdown, _write_bag
+from ibr_ros.jobs.process.params import NODES, _configs, load_params
+from ibr_ros.jobs.process.refine import _refine_all
+from ibr_ros.jobs.process.render import NovelView, _render_all
+from ibr_ros.jobs.process.sfm import GPS_MAX_GAP_S, _register
+
+__all__ = [
+    'GPS_MAX_GAP_S',
+    'NODES',
+    'OUT_TOPICS',
+    'Keyframe',
+    'NovelView',
+    'ProcessOptions',
+    'load_params',
+    'process_bag',
+]
+
+
+def process_bag(
+    bag: Path, out: Path, options: ProcessOptions | None = None, progress: Progress | None = None
+) -> dict[str, object]:
+    """Process ``bag`` into the folder ``out`` (see the module docstring); returns the summary.
+
+    Raises:
+        UserError: Unreadable bag, missing topics, no frames or keyframes, bad parameters, an
+            existing ``out/bag`` without ``overwrite``.
+
+    """
+    o = options or ProcessOptions()
+    bag, out = Path(bag), Path(out)
+    if o.views < 0:
+        raise UserError(f'--views must be >= 0, got {o.views}')
+    if o.max_keyframes is not None and o.max_keyframes < 1:
+        raise UserError(f'--max-keyframes must be >= 1, got {o.max_keyframes}')
+    if (out / 'bag').exists() and not o.overwrite:
+        raise UserError(f'{out / "bag"} exists already (pass --overwrite to replace it)')
+    params = load_params(o.params)
+    cfg = _configs(params, o)
+    threads = _set_threads(o.threads)
+    t_start = time.perf_counter()
+    sub = _subsample(bag, cfg, o, progress)
+    keyframes = sub.keyframes
+    t_sub = time.perf_counter()
+    sfm_info = None
+    if sub.sfm_why is not None:
+        keyframes, cfg, sfm_info = _register(sub, cfg, o.threads, progress)
+    t_sfm = time.perf_counter()
+    refine_info = _refine_all(keyframes, cfg, progress)
+    t_ref = time.perf_counter()
+    views, render_info = _render_all(keyframes, cfg, o.views, progress)
+    t_render = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
+    topic_counts = _write_bag(out / 'bag', keyframes, views, cfg, model_frame, o.overwrite)
+    t_write = time.perf_counter()
+    previews = out / 'previews'
+    previews.mkdir(exist_ok=True)
+    for old in previews.glob('*.png'):  # a previous run's previews would mix with these
+        old.unlink()
+    gt = _evaluate(bag, keyframes, views, previews, progress, sfm=sfm_info is not None)
+    t_eval = time.perf_counter()
+
+    refined = [k for k in keyframes if k.depth is not None]
+    mvs_s = sum(k.timings_s.get('mvs', 0.0) for k in keyframes)
+    refine_s = sum(k.timings_s.get('refine', 0.0) for k in keyframes)
+    timings = {
+        'subsample': t_sub - t_start,
+        'sfm': t_sfm - t_sub,
+        'mvs': mvs_s,
+        'refine': refine_s,
+        'schedule': (t_ref - t_sfm) - mvs_s - refine_s,
+        'render': t_render - t_ref,
+        'write': t_write - t_render,
+        'pipeline': t_write - t_start,
+        'evaluate': t_eval - t_write,
+        'total': t_eval - t_start,
+    }
+    n = len(keyframes)
+    answered = [v for v in views if v.rgb is not None]
+    summary: dict[str, object] = {
+        'bag': str(bag),
+        'topics': sub.topics,
+        'params': params,
+        'threads': threads,
+        'frames': {
+            'images': sub.counts['image'],
+            'camera_info': sub.counts['camera_info'],
+            'poses': sub.counts['pose'],
+            'complete': sub.counts['frames'],
+            'decisions': dict(sorted(sub.decisions.items())),
+            'bad': dict(sorted(sub.bad.items())),
+            'stopped_at_max_keyframes': sub.stopped,
+        },
+        'keyframe_selection': sub.selection,
+        'sfm': sfm_info,
+        'keyframes': n,
+        'refined': len(refined),
+        'refine': refine_info,
+        'views_requested': len(views),
+        'views_answered': len(answered),
+        'unanswered': {str(v.stamp): v.reason for v in views if v.rgb is None},
+        'render': render_info,
+        'render_ms_median': float(np.median([1e3 * v.render_s for v in views])) if views else None,
+        'output': {'bag': str(out / 'bag'), 'topics': topic_counts},
+        'timings_s': timings,
+        'seconds_per_keyframe': {k: v / n for k, v in timings.items()},
+        'per_keyframe': [
+            {
+                'stamp': k.stamp,
+                'reason': k.reason,
+                'refined': k.depth is not None,
+                'neighbours': list(k.neighbours),
+                **{f'{s}_s': t for s, t in k.timings_s.items()},
+            }
+            for k in keyframes
+        ],
+        'ground_truth': gt,
+    }
+    write_atomic(out / 'summary.json', json.dumps(summary, indent=2, default=_json_default) + '\n')
+    write_atomic(out / 'summary.md', _markdown(summary))
+    return summary
+
+
+def _set_threads(threads: int | None) -> int:
+    """Use ``threads`` numba and OpenCV threads (None: numba's default, all cores); returns the count."""
+    import numba
+
+    if threads is not None:
+        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+            raise UserError(f'--threads must be in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads}')
+        numba.set_num_threads(threads)
+        cv2.setNumThreads(threads)
+    return int(numba.get_num_threads())

@@ -1,0 +1,356 @@
+"""Reading the bag: topics, frames matched by header stamp, and the frame_subsampler's keyframes
+(streaming, for a target count in two passes, or without poses per interval)."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import msg_utils
+from ibr_ros.bag import BagReader, detect_topics, open_bag
+from ibr_ros.bag.detect import COMPRESSED_IMAGE, ODOMETRY, POSE_STAMPED
+from ibr_ros.core.camera import CameraError, PinholeCamera
+from ibr_ros.core.geometry import GeometryError
+from ibr_ros.core.keyframes import (
+    IntervalSelector,
+    KeyframeSelector,
+    TargetSelection,
+    blur_score,
+    select_keyframes_for_target,
+)
+from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.errors import UserError
+from ibr_ros.jobs.process.options import ProcessOptions, Progress
+from ibr_ros.jobs.process.params import _Configs
+
+LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
+
+
+BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
+
+
+@dataclass
+class Keyframe:
+    """A selected keyframe: ``stamp`` (ns), rgb8 image, camera, camera-to-world pose, frames, reason.
+
+    In SfM mode ``t_wc`` is NaN until registered, then SfM's (``pose_frame`` ``map`` or ``sfm``);
+    ``bag_t_wc`` keeps the bag's pose at that stamp, if any (ground truth of a synthetic bag).
+    """
+
+    stamp: int
+    rgb: np.ndarray
+    camera: PinholeCamera
+    t_wc: np.ndarray
+    camera_frame: str
+    pose_frame: str
+    reason: str
+    depth: np.ndarray | None = None  # refined, float32 metres (NaN unknown)
+    neighbours: tuple[int, ...] = ()
+    timings_s: dict[str, float] = field(default_factory=dict)
+    bag_t_wc: np.ndarray | None = None
+
+
+@dataclass
+class _Subsampled:
+    keyframes: list[Keyframe]
+    counts: Counter
+    bad: Counter
+    decisions: Counter
+    topics: dict[str, str | None]
+    sfm_why: str | None = None  # why SfM mode (None: the bag's poses are used)
+    poseless: bool = False  # keyframes chosen without poses (IntervalSelector)
+    fixes: list[msg_utils.GeoFix] = field(default_factory=list)
+    stopped: bool = False  # at max_keyframes
+    selection: dict[str, object] = field(default_factory=dict)  # how the keyframes were chosen
+
+
+@dataclass
+class _Frame:
+    """A complete frame: image (None when not decoded: not wanted), camera, its frame id, pose."""
+
+    stamp: int
+    image: np.ndarray | None
+    camera: PinholeCamera
+    camera_frame: str
+    pose: tuple[np.ndarray, str] | None  # None without poses (SfM mode)
+
+
+@dataclass
+class _Reading:
+    """What one pass of :func:`_frames` counted and collected (``image_ok``: per image message, in bag
+    order, whether it decoded).
+    """
+
+    counts: Counter = field(default_factory=Counter)
+    bad: Counter = field(default_factory=Counter)
+    fixes: list[msg_utils.GeoFix] = field(default_factory=list)
+    bag_poses: dict[int, np.ndarray] = field(default_factory=dict)
+    image_ok: list[bool] = field(default_factory=list)
+
+
+def _frames(
+    reader: BagReader,
+    topics: dict[str, str | None],
+    cfg: _Configs,
+    poseless: bool,
+    reading: _Reading,
+    progress: Progress | None,
+    *,
+    stage: str = 'frames',
+    wanted: set[int] | None = None,
+    decoded: list[bool] | None = None,
+) -> Iterator[_Frame]:
+    """The bag's complete frames in bag-time order: image, camera_info and (unless ``poseless``) pose
+    with identical header stamps, counted into ``reading``.
+
+    ``wanted`` (a second pass): yield only the frames with these stamps and decode only their images;
+    ``decoded`` (the first pass's ``image_ok``) says which other image messages to put undecoded, so
+    that the frames are assembled exactly as in the first pass.
+    """
+    counts, bad = reading.counts, reading.bad
+
+    def incomplete(detail: str) -> None:
+        bad['incomplete'] += 1
+        LOG.debug(detail)
+
+    fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
+    assembler = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
+    compressed = topics['image_type'] == COMPRESSED_IMAGE
+    to_pose = (
+        msg_utils.odometry_to_matrix if topics['pose_type'] == ODOMETRY else msg_utils.pose_stamped_to_matrix
+    )
+    n_images = reader.topics[str(topics['image'])].count
+    role = {str(topics[k]): k for k in ('image', 'camera_info', 'pose', 'navsat') if topics[k] is not None}
+    for m in reader.messages(list(role)):
+        field = role[m.topic]
+        counts[field] += 1
+        if field == 'image' and progress is not None:
+            progress(stage, counts['image'], n_images)
+        msg: Any = m.msg
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        try:
+            if field == 'image':
+                if wanted is not None and stamp not in wanted:
+                    ok = decoded is None or (counts['image'] <= len(decoded) and decoded[counts['image'] - 1])
+                    if not ok:
+                        bad[field] += 1
+                        continue
+                    value: object = None  # not wanted: assembled as in the first pass, not decoded
+                else:
+                    rgb = (
+                        msg_utils.compressed_image_to_numpy(msg)
+                        if compressed
+                        else msg_utils.image_to_rgb(msg)
+                    )
+                    value = np.ascontiguousarray(
+                        np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb
+                    )
+                reading.image_ok.append(True)
+            elif field == 'camera_info':
+                value = (msg.header.frame_id, msg_utils.camera_info_to_pinhole(msg))
+            elif field == 'navsat':
+                fix = msg_utils.navsatfix_to_fix(msg)
+                if fix.status >= 0 and math.isfinite(fix.altitude_m):  # as ibr register
+                    reading.fixes.append(fix)
+                else:
+                    bad['navsat (no fix or altitude)'] += 1
+                continue
+            else:
+                value = (to_pose(msg), msg.header.frame_id or 'map')
+        except BAD_MESSAGE as exc:
+            bad[field] += 1
+            if field == 'image':
+                reading.image_ok.append(False)
+            LOG.debug('bad %s message at %d ns: %s', field, stamp, exc)
+            continue
+        if field == 'pose' and poseless:  # ignored, but the ground truth of a synthetic bag
+            reading.bag_poses[stamp] = value[0]  # type: ignore[index]
+            continue
+        if (f := assembler.put(stamp, field, value)) is None or (wanted is not None and stamp not in wanted):
+            continue
+        image, (camera_frame, camera) = f['image'], f['camera_info']
+        if (camera.height, camera.width) != image.shape[:2]:
+            bad['camera_info'] += 1
+            LOG.debug(
+                'CameraInfo %dx%d does not match the image at %d ns', camera.width, camera.height, stamp
+            )
+            continue
+        counts['frames'] += 1
+        yield _Frame(stamp, image, camera, camera_frame, None if poseless else f['pose'])
+
+
+def _select_topics(
+    reader: BagReader, o: ProcessOptions, cfg: _Configs
+) -> tuple[dict[str, str | None], str | None]:
+    """Image, camera_info, pose and NavSatFix topics (given or detected by type) and their types, and
+    why SfM mode is used (None: it is not).
+    """
+    sel = detect_topics(
+        reader, image=o.image_topic, camera_info=o.info_topic, pose=o.pose_topic, navsat=o.navsat_topic
+    )
+    topics = reader.topics
+    where = f'{reader.path}: topics: ' + ', '.join(f'{t.name} ({t.msgtype})' for t in topics.values())
+    if sel.image is None:
+        raise UserError(
+            f'no camera image topic (sensor_msgs/msg/Image or CompressedImage; --image-topic); {where}'
+        )
+    if sel.camera_info is None:
+        raise UserError(f'no camera_info topic (sensor_msgs/msg/CameraInfo; --info-topic); {where}')
+    if sel.pose is not None and sel.pose_type not in (POSE_STAMPED, ODOMETRY):
+        raise UserError(
+            f'pose topic {sel.pose} is {sel.pose_type}; ibr process reads geometry_msgs/msg/PoseStamped '
+            f'or nav_msgs/msg/Odometry; {where}'
+        )
+    no_pose = 'no pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry; --pose-topic)'
+    if o.sfm:
+        why: str | None = '--sfm'
+    elif sel.pose is None and cfg.sfm_mode == 'off':
+        raise UserError(
+            f'{no_pose} and depth_refiner sfm_mode is off: frames without poses are not refined '
+            f'(sfm_mode auto or --sfm registers them with SfM); {where}'
+        )
+    elif sel.pose is None and cfg.pose_timeout_s <= 0:
+        raise UserError(
+            f'{no_pose} and frame_subsampler pose_timeout_s is 0: it never selects keyframes without poses '
+            f'(set it > 0 or pass --sfm); {where}'
+        )
+    elif sel.pose is None:
+        why = 'no pose topic'
+    else:
+        why = "depth_refiner sfm_mode 'always'" if cfg.sfm_mode == 'always' else None
+    out: dict[str, str | None] = {
+        'image': sel.image,
+        'camera_info': sel.camera_info,
+        'pose': sel.pose,
+        'navsat': sel.navsat if why is not None and o.gps else None,
+        'image_type': topics[sel.image].msgtype,
+        'pose_type': None if sel.pose is None else str(sel.pose_type),
+    }
+    return out, why
+
+
+def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress | None) -> _Subsampled:
+    """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
+    mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
+    :func:`~ibr_ros.core.keyframes.select_keyframes` over the whole flight instead (two passes).
+    """
+    decisions: Counter = Counter()
+    keyframes: list[Keyframe] = []
+    reading = _Reading()
+
+    def keep(frame: _Frame, reason: str) -> bool:
+        """Append a keyframe; True when ``max_keyframes`` are there."""
+        pose = frame.pose
+        t_wc, pose_frame = pose if pose is not None and sfm_why is None else (np.full((4, 4), np.nan), '')
+        bag_pose = pose[0] if pose is not None else reading.bag_poses.get(frame.stamp)
+        camera_frame = frame.camera_frame or 'camera_optical'
+        image: np.ndarray = frame.image  # type: ignore[assignment]  # decoded: a wanted frame
+        bag_t_wc = bag_pose if sfm_why is not None else None
+        keyframes.append(
+            Keyframe(
+                frame.stamp, image, frame.camera, t_wc, camera_frame, pose_frame, reason, bag_t_wc=bag_t_wc
+            )
+        )
+        return o.max_keyframes is not None and len(keyframes) >= o.max_keyframes
+
+    stopped = False
+    with open_bag(bag) as reader:
+        topics, sfm_why = _select_topics(reader, o, cfg)
+        poseless = topics['pose'] is None or o.sfm
+        frames = _frames(reader, topics, cfg, poseless, reading, progress)
+        scene_depth = cfg.subsampler_scene_depth or None
+        if poseless:
+            if cfg.target_keyframes:
+                LOG.warning(
+                    'target_keyframes %d ignored: keyframes chosen without poses', cfg.target_keyframes
+                )
+            selection: dict[str, object] = {'method': 'interval', 'interval_s': cfg.poseless_interval_s}
+            interval = IntervalSelector(cfg.poseless_interval_s, cfg.keyframes)
+            for f in frames:
+                for _, chosen in interval.push(f.stamp, blur_score(f.image), f):  # type: ignore[arg-type]
+                    stopped = stopped or keep(chosen, 'sharpest of its window')
+                if stopped:
+                    break
+            if not stopped:
+                for _, chosen in interval.flush():
+                    keep(chosen, 'sharpest of its window')
+            decisions.update({'keyframe (sharpest of its window)': len(keyframes), **interval.rejected})
+            decisions['not chosen in its window'] = reading.counts['frames'] - sum(decisions.values())
+            decisions = +decisions  # drop zero counts
+            for k in keyframes:  # poses read after the frame's image
+                if k.bag_t_wc is None and k.stamp in reading.bag_poses:
+                    k.bag_t_wc = reading.bag_poses[k.stamp]
+        elif cfg.target_keyframes:
+            # First pass: stamps, poses and blur scores of every frame; the images are not kept.
+            seen = [(f.stamp, f.pose[0], blur_score(f.image)) for f in frames]  # type: ignore[index, arg-type]
+            t0 = time.perf_counter()
+            chosen = select_keyframes_for_target(
+                [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
+                target=cfg.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=cfg.keyframes,
+            ) if seen else TargetSelection([], 1.0, [])  # fmt: skip
+            picked, scale, decided = chosen.indices, chosen.scale, chosen.decisions
+            decisions.update(d.reason for d in decided)
+            reasons = {seen[i][0]: decided[i].reason for i in picked}
+            if o.max_keyframes is not None and len(picked) > o.max_keyframes:
+                picked, stopped = picked[: o.max_keyframes], True
+            selection = {
+                'method': 'select_keyframes',
+                'target': cfg.target_keyframes,
+                'frames': len(seen),
+                'selected': len(reasons),
+                'scale': scale,
+                'baseline_ratio': cfg.keyframes.baseline_ratio * scale,
+                'min_baseline_m': cfg.keyframes.min_baseline_m * scale,
+                'scene_depth_m': scene_depth,
+                'seconds': time.perf_counter() - t0,
+            }
+            # Second pass: the chosen frames' images (the others are not decoded).
+            wanted = {seen[i][0] for i in picked}
+            again = _frames(
+                reader, topics, cfg, poseless, _Reading(), progress,
+                stage='reread', wanted=wanted, decoded=reading.image_ok,
+            )  # fmt: skip
+            for f in again:
+                keep(f, reasons[f.stamp])
+                if len(keyframes) == len(wanted):
+                    break
+            if len(keyframes) != len(wanted):
+                raise UserError(
+                    f'{bag}: changed while read: {len(keyframes)} of {len(wanted)} keyframes found again'
+                )
+        else:
+            selection = {'method': 'streaming'}
+            selector = KeyframeSelector(cfg.keyframes)
+            for f in frames:
+                d = selector.decide(f.stamp, f.pose[0], blur_score(f.image), scene_depth)  # type: ignore[index, arg-type]
+                decisions[d.reason] += 1
+                if d.keep and keep(f, d.reason):
+                    stopped = True
+                    break
+    counts, bad = reading.counts, reading.bad
+    if not keyframes:
+        needed = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
+        missing = [k for k in needed if not counts[k]]
+        if missing:
+            why = f'no {", ".join(missing)} message read'
+        elif not counts['frames']:
+            why = (
+                f'no frame has {" and ".join(needed)} with identical header stamps '
+                f'({counts["image"]} images, {counts["camera_info"]} camera_info, {counts["pose"]} poses '
+                f'read; bad or incomplete: {dict(bad) or "none"})'
+            )
+        else:
+            why = f'no keyframe among {counts["frames"]} frames ({dict(decisions)})'
+        names = ', '.join(str(topics[k]) for k in needed if topics[k] is not None)
+        raise UserError(f'{bag}: {why} (topics {names})')
+    return _Subsampled(
+        keyframes, counts, bad, decisions, topics, sfm_why, poseless, reading.fixes, stopped, selection
+    )

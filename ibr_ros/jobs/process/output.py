@@ -1,0 +1,167 @@
+"""The output bag (the graph's topics, types and QoS) and ``summary.md``/``summary.json`` helpers."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+import msg_utils
+from ibr_ros.bag import BagWriter, OfferedQos
+from ibr_ros.jobs.process.frames import Keyframe
+from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.render import NovelView
+
+#: Output topics (fully qualified: what the graph's relative names resolve to in the root namespace).
+#: QoS the graph's publishers offer (ibr_ros.nodes.common.model_qos / reliable_qos), recorded per topic
+#: so that bag_player and ros2 bag play offer it again (a late-joining renderer gets the whole model).
+MODEL_QOS = OfferedQos('reliable', 'transient_local', depth=1000)
+REPLY_QOS = OfferedQos('reliable', 'volatile', depth=10)
+
+OUT_TOPICS = {
+    'image': ('/keyframes/image', 'sensor_msgs/msg/Image'),
+    'camera_info': ('/keyframes/camera_info', 'sensor_msgs/msg/CameraInfo'),
+    'pose': ('/keyframes/pose', 'geometry_msgs/msg/PoseStamped'),
+    'depth': ('/keyframes/depth', 'sensor_msgs/msg/Image'),
+    'depth_info': ('/keyframes/depth/camera_info', 'sensor_msgs/msg/CameraInfo'),
+    'query': ('/novel_view/query', 'geometry_msgs/msg/PoseStamped'),
+    'view': ('/novel_view/image', 'sensor_msgs/msg/Image'),
+    'view_info': ('/novel_view/camera_info', 'sensor_msgs/msg/CameraInfo'),
+}
+
+
+def _write_bag(
+    path: Path,
+    keyframes: list[Keyframe],
+    views: list[NovelView],
+    cfg: _Configs,
+    model_frame: str,
+    overwrite: bool,
+) -> dict[str, int]:
+    """The output bag, every message logged at its header stamp, in time order."""
+    rb = {'flavor': 'rosbags'}
+    events: list[tuple[int, int, str, object]] = []
+    for k in keyframes:
+        header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
+        events.append((k.stamp, 0, 'image', msg_utils.numpy_to_image(k.rgb, 'rgb8', header, **rb)))
+        events.append((k.stamp, 1, 'camera_info', msg_utils.pinhole_to_camera_info(k.camera, header, **rb)))
+        pose = msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)
+        events.append((k.stamp, 2, 'pose', pose))
+        if k.depth is not None:
+            events.append((k.stamp, 3, 'depth', msg_utils.numpy_to_image(k.depth, '32FC1', header, **rb)))
+            events.append(
+                (k.stamp, 4, 'depth_info', msg_utils.pinhole_to_camera_info(k.camera, header, **rb))
+            )
+    for v in views:
+        query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)
+        events.append((v.stamp, 5, 'query', query))
+        if v.rgb is not None and v.camera is not None:
+            header = msg_utils.make_header(v.stamp, cfg.view_frame, **rb)
+            events.append((v.stamp, 6, 'view', msg_utils.numpy_to_image(v.rgb, 'rgb8', header, **rb)))
+            events.append((v.stamp, 7, 'view_info', msg_utils.pinhole_to_camera_info(v.camera, header, **rb)))
+    events.sort(key=lambda e: (e[0], e[1]))
+    counts: Counter = Counter()
+    with BagWriter(path, overwrite=overwrite) as writer:
+        for name, msgtype in OUT_TOPICS.values():
+            writer.add_topic(name, msgtype, MODEL_QOS if name.startswith('/keyframes/') else REPLY_QOS)
+        for stamp, _, key, msg in events:
+            writer.write(OUT_TOPICS[key][0], msg, stamp)
+            counts[OUT_TOPICS[key][0]] += 1
+    return {name: counts[name] for name, _ in OUT_TOPICS.values()}
+
+
+def _selection_line(sel: dict) -> str:
+    """How the keyframes were chosen, for ``summary.md``."""
+    if sel['method'] == 'interval':
+        return f'without poses, the sharpest frame per {sel["interval_s"]:g} s window'
+    if sel['method'] == 'streaming':
+        return 'KeyframeSelector frame by frame (as the live frame_subsampler; no target_keyframes)'
+    scale = (
+        f'baseline scale {sel["scale"]:.3g} (baseline_ratio {sel["baseline_ratio"]:.3g}, '
+        f'min_baseline_m {sel["min_baseline_m"]:.3g})'
+    )
+    return (
+        f'select_keyframes over the whole flight, target {sel["target"]}: {sel["selected"]} of '
+        f'{sel["frames"]} frames, {scale}'
+    )
+
+
+def _markdown(s: dict) -> str:
+    t, pk = s['timings_s'], s['seconds_per_keyframe']
+
+    def f(v: object, fmt: str = '.3f') -> str:
+        return 'n/a' if v is None else format(v, fmt)
+
+    tp = s['topics']
+    pose = f'{tp["pose"]} ({tp["pose_type"]})' if tp['pose'] else 'no pose topic'
+    lines = [
+        f'# ibr process on `{s["bag"]}`',
+        '',
+        f'- input: {tp["image"]} ({tp["image_type"]}), {tp["camera_info"]}, {pose}'
+        + (f', {tp["navsat"]} (NavSatFix)' if tp.get('navsat') else ''),
+        f'- frames: {s["frames"]["complete"]} complete of {s["frames"]["images"]} images; '
+        f'decisions {s["frames"]["decisions"]}; bad or incomplete {s["frames"]["bad"]}',
+        f'- keyframes: {s["keyframes"]}, refined: {s["refined"]}; novel views: {s["views_answered"]}/'
+        f'{s["views_requested"]} answered',
+        f'- keyframe selection: {_selection_line(s["keyframe_selection"])}',
+        f'- output bag: `{s["output"]["bag"]}` ({sum(s["output"]["topics"].values())} messages)',
+    ]
+    if (sfm := s.get('sfm')) is not None:
+        gps = sfm['gps']
+        lines.append(
+            f'- SfM mode ({sfm["why"]}; keyframes {sfm["keyframe_selection"]}): {sfm["registered"]}/'
+            f'{sfm["keyframes"]} keyframes registered, frame `{sfm["frame_id"]}` (unit {sfm["unit"]}), '
+            f'reprojection error {f(sfm["mean_reprojection_error_px"], ".2f")} px, '
+            + (
+                'no GPS'
+                if gps is None
+                else f'GPS for {gps["keyframes_with_gps"]} keyframes, alignment RMS '
+                f'{f(gps["alignment_rms_m"], ".2f")} m'
+            )
+            + f'; {sfm["seconds"]:.1f} s'
+        )
+    lines += [
+        '',
+        '| stage | seconds | seconds per keyframe |',
+        '| --- | --- | --- |',
+    ]
+    for stage in (
+        'subsample',
+        *(('sfm',) if s.get('sfm') is not None else ()),
+        'schedule',
+        'mvs',
+        'refine',
+        'render',
+        'write',
+        'pipeline',
+        'evaluate',
+        'total',
+    ):
+        lines.append(f'| {stage} | {t[stage]:.2f} | {f(pk[stage])} |')
+    if (gt := s.get('ground_truth')) is not None:
+        lines += [
+            '',
+            f'- refined depth vs ground truth: median abs rel {f(gt["depth_median_abs_rel"], ".4f")} '
+            f'(median over keyframes), coverage {f(gt["depth_coverage_mean"], ".2f")}'
+            + (
+                f" (SfM poses fitted to the bag's: scale {gt['sfm_alignment']['scale']:.4g}, centre RMS "
+                f'{gt["sfm_alignment"]["centre_rms_m"]:.3f} m, rotation RMS '
+                f'{gt["sfm_alignment"]["rotation_rms_deg"]:.2f} deg)'
+                if gt.get('sfm_alignment')
+                else ''
+            ),
+            f'- novel views vs ground truth (7x7, shift 2): mean AUC {f(gt["rephoto_auc_mean"], ".2f")}, '
+            f'mean worst-1% {f(gt["rephoto_tail_mean"], ".2f")}, completeness '
+            f'{f(gt["rephoto_completeness_mean"], ".2f")}',
+        ]
+    return '\n'.join(lines) + '\n'
+
+
+def _json_default(value: object) -> object:
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    raise TypeError(f'not JSON serialisable: {type(value).__name__}')

@@ -1,0 +1,238 @@
+"""The node parameters ``ibr process`` reads (``config/<node>.yaml`` + a ROS 2 params file) and the core
+configurations mapped from them."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from ibr_ros.core.keyframes import KeyframeConfig
+from ibr_ros.core.mvs import MvsOptions
+from ibr_ros.core.refine import RefinerConfig
+from ibr_ros.core.render import RenderConfig
+from ibr_ros.core.schedule import ScheduleConfig, parse_depth_range
+from ibr_ros.core.sfm_session import ScaleHint
+from ibr_ros.errors import UserError
+from ibr_ros.jobs.process.options import ProcessOptions
+from ibr_ros.models import mono_spec, sky_spec
+
+LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
+
+
+#: The nodes whose parameters ``ibr process`` reads.
+NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
+SFM_MODES = ('auto', 'always', 'off')
+SFM_SCALES = ('none', 'baseline', 'altitude', 'depth')
+
+
+def _section_targets(key: str) -> str | None:
+    """The node a params-file section applies to (``'*'`` for wildcards), from its key."""
+    key = str(key).strip()
+    if key in ('/**', '**'):
+        return '*'
+    name = key.rstrip('/').rsplit('/', 1)[-1]
+    return name or None
+
+
+def _read_params_file(path: Path) -> list[tuple[str, dict[str, object]]]:
+    """``[(target, {name: value})]`` of a ROS 2 params file, in file order."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text(encoding='utf-8'))
+    except OSError as exc:
+        raise UserError(f'{path}: cannot read params file: {exc.strerror or exc}') from exc
+    except yaml.YAMLError as exc:
+        raise UserError(f'{path}: not a YAML params file: {exc}') from exc
+    if not isinstance(doc, dict):
+        raise UserError(f'{path}: a params file maps node names to {{ros__parameters: ...}}')
+    out = []
+    for key, section in doc.items():
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise UserError(f'{path}: section {key!r} has no ros__parameters mapping')
+        if (target := _section_targets(key)) is not None:
+            out.append((target, params))
+    return out
+
+
+def _coerce(path: Path, node: str, name: str, value: object, default: object) -> object:
+    """``value`` as the type of the parameter's default (an integer is accepted for a float)."""
+    kinds = {bool: 'true or false', float: 'a number', int: 'an integer', list: 'a list'}
+    kind = kinds.get(type(default), 'a string')
+    bad = UserError(f'{path}: {node}.{name} must be {kind} (default {default!r}), got {value!r}')
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad
+        return float(value)
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad
+        return value
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise bad
+        return value
+    if not isinstance(value, type(default)):
+        raise bad
+    return value
+
+
+def load_params(params_file: Path | None = None, config: Path | None = None) -> dict[str, dict[str, object]]:
+    """Parameters of :data:`NODES`: ``config/<node>.yaml`` (``config`` folder, default the graph's),
+    then the sections of ``params_file`` that apply to each node (wildcards first, in file order).
+
+    Raises:
+        UserError: Unreadable file, unknown parameter of a named node, a value of the wrong type.
+
+    """
+    from ibr_ros.graph import config_dir
+
+    folder = Path(config) if config is not None else config_dir()
+    params: dict[str, dict[str, object]] = {}
+    for node in NODES:
+        params[node] = {}
+        for target, values in _read_params_file(folder / f'{node}.yaml'):
+            if target in ('*', node):
+                params[node].update(values)
+    if params_file is None:
+        return params
+    sections = _read_params_file(Path(params_file))
+    for target, values in sorted(sections, key=lambda s: s[0] != '*'):  # stable: wildcards first
+        nodes = NODES if target == '*' else (target,) if target in NODES else ()
+        if not nodes:
+            LOG.info(
+                '%s: section for %s ignored (ibr process runs %s)', params_file, target, ', '.join(NODES)
+            )
+            continue
+        for name, value in values.items():
+            known = [n for n in nodes if name in params[n]]
+            if not known:
+                where = nodes[0] if len(nodes) == 1 else 'any of ' + ', '.join(nodes)
+                raise UserError(f'{params_file}: {name!r} is not a parameter of {where}')
+            for n in known:
+                params[n][name] = _coerce(Path(params_file), n, name, value, params[n][name])
+    return params
+
+
+@dataclass(frozen=True)
+class _Configs:
+    keyframes: KeyframeConfig
+    subsampler_scene_depth: float
+    target_keyframes: int  # 0 = off (the streaming selector)
+    max_pending: int
+    schedule: ScheduleConfig
+    flush: bool
+    refiner: RefinerConfig
+    render: RenderConfig
+    out_size: tuple[int, int, float]  # width, height, hfov_deg; 0 = the last keyframe's
+    min_valid: float
+    view_frame: str
+    pose_timeout_s: float
+    poseless_interval_s: float
+    sfm_mode: str
+    sfm_min_keyframes: int
+    sfm_max_side: int
+    sfm_scale: ScaleHint | None
+
+
+def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Configs:
+    """The core configurations, mapped from the node parameters exactly as the nodes map them."""
+    fs, dr, vr = (params[n] for n in NODES)
+    try:
+        kf = KeyframeConfig(
+            **{k: float(fs[k]) for k in ('baseline_ratio', 'min_baseline_m', 'max_rotation_deg')},
+            max_interval_s=float(fs['max_interval_s']),
+            min_interval_s=float(fs['min_interval_s']),
+            blur_ratio=float(fs['blur_ratio']),
+        )
+        mvs = MvsOptions(max_neighbours=int(dr['max_neighbours']))
+        schedule = ScheduleConfig(
+            min_neighbours=int(dr['min_neighbours']),
+            depth_range=parse_depth_range(dr['depth_range']),  # type: ignore[arg-type]
+            scene_depth_m=float(dr['scene_depth_m']),
+            near_ratio=float(dr['near_ratio']),
+            far_ratio=float(dr['far_ratio']),
+            mvs=mvs,
+        )
+        sfm_mode, sfm_scale, sfm_scale_m = str(dr['sfm_mode']), str(dr['sfm_scale']), float(dr['sfm_scale_m'])
+        if sfm_mode not in SFM_MODES:
+            raise UserError(
+                f"depth_refiner parameter sfm_mode must be 'auto', 'always' or 'off', got {sfm_mode!r}"
+            )
+        if sfm_scale not in SFM_SCALES:
+            raise UserError(
+                "depth_refiner parameter sfm_scale must be 'none', 'baseline', 'altitude' or 'depth', "
+                f'got {sfm_scale!r}'
+            )
+        if sfm_scale != 'none' and sfm_scale_m <= 0:
+            raise UserError(
+                f'depth_refiner parameter sfm_scale_m must be > 0 with sfm_scale {sfm_scale!r}, '
+                f'got {sfm_scale_m}'
+            )
+        sfm = {
+            'pose_timeout_s': float(fs['pose_timeout_s']),
+            'poseless_interval_s': float(fs['poseless_interval_s']),
+            'sfm_mode': sfm_mode,
+            'sfm_min_keyframes': int(dr['sfm_min_keyframes']),
+            'sfm_max_side': int(dr['sfm_max_side']),
+            'sfm_scale': ScaleHint(sfm_scale, sfm_scale_m) if sfm_scale != 'none' else None,  # type: ignore[arg-type]
+        }
+        if sfm['poseless_interval_s'] <= 0 or sfm['sfm_min_keyframes'] < 3 or sfm['sfm_max_side'] < 0:
+            raise UserError(
+                'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
+                f'sfm_max_side >= 0, got {sfm["poseless_interval_s"]}, {sfm["sfm_min_keyframes"]}, '
+                f'{sfm["sfm_max_side"]}'
+            )
+        mono, sky = str(dr['mono']), str(dr['sky'])
+        if mono not in ('plane', 'onnx'):
+            raise UserError(f"depth_refiner parameter mono must be 'plane' or 'onnx', got {mono!r}")
+        if sky not in ('fallback', 'onnx', 'none'):
+            raise UserError(f"depth_refiner parameter sky must be 'fallback', 'onnx' or 'none', got {sky!r}")
+        refiner = RefinerConfig(
+            mono=mono,  # type: ignore[arg-type]
+            mono_model=mono_spec(str(dr['mono_model']), str(dr['mono_preset'])) if mono == 'onnx' else None,
+            sky=sky,  # type: ignore[arg-type]
+            sky_model=sky_spec(str(dr['sky_model']), str(dr['sky_preset'])) if sky == 'onnx' else None,
+            mvs=mvs,
+        )
+        render = RenderConfig(
+            renderer=str(vr['renderer']),  # type: ignore[arg-type]
+            blend=str(vr['blend']),  # type: ignore[arg-type]
+            n_views=int(vr['n_views']),
+            n_segments=int(vr['n_segments']),
+            max_axis_angle_deg=float(vr['max_axis_angle_deg']),
+            far_factor=float(vr['far_factor']),
+            max_cached_views=int(vr['max_cached_views']),
+        )
+    except (ValueError, TypeError, KeyError) as exc:
+        raise UserError(f'bad node parameters: {exc}') from exc
+    size = (
+        int(vr['width']) if o.width is None else o.width,
+        int(vr['height']) if o.height is None else o.height,
+        float(vr['hfov_deg']) if o.hfov_deg is None else o.hfov_deg,
+    )
+    if size[0] < 0 or size[1] < 0 or not 0 <= size[2] < 180:
+        raise UserError(f'novel view size {size[0]}x{size[1]}, hfov {size[2]} deg: need >= 0 and hfov < 180')
+    target = int(fs['target_keyframes']) if o.target_keyframes is None else o.target_keyframes
+    if target < 0:
+        raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
+    return _Configs(
+        keyframes=kf,
+        subsampler_scene_depth=float(fs['scene_depth_m']),
+        target_keyframes=target,
+        max_pending=int(fs['max_pending']),
+        schedule=schedule,
+        flush=float(dr['flush_after_s']) > 0,
+        refiner=refiner,
+        render=render,
+        out_size=size,
+        min_valid=float(vr['min_valid_fraction']),
+        view_frame=str(vr['frame_id']),
+        **sfm,  # type: ignore[arg-type]
+    )

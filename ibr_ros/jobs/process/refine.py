@@ -1,0 +1,68 @@
+"""MVS + refinement of every keyframe with the whole flight known (the depth_refiner's policy)."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from ibr_ros.core.mono import MonoModelError
+from ibr_ros.core.mvs import MvsView, compute_depth_maps
+from ibr_ros.core.refine import DepthRefiner, RefineError
+from ibr_ros.core.schedule import RefineScheduler
+from ibr_ros.errors import UserError
+from ibr_ros.jobs.process.frames import BAD_MESSAGE, Keyframe
+from ibr_ros.jobs.process.options import Progress
+from ibr_ros.jobs.process.params import _Configs
+
+LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
+
+
+def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | None) -> dict[str, object]:
+    """MVS + refinement of every keyframe, oldest first, with the whole flight known."""
+    by_stamp = {k.stamp: k for k in keyframes}
+    scheduler = RefineScheduler(cfg.schedule)
+    for k in keyframes:
+        scheduler.add(k.stamp, MvsView(k.rgb, k.camera, k.t_wc))
+    try:
+        refiner = DepthRefiner(cfg.refiner)  # loads the ONNX models of mono/sky 'onnx'
+    except MonoModelError as exc:
+        raise UserError(f'depth_refiner mono_model/sky_model: {exc}') from exc
+    failures: dict[int, str] = {}
+    attempts = 0
+    if progress is not None:
+        progress('keyframes', 0, len(keyframes))
+    while True:
+        try:
+            job = scheduler.next_job(flush=cfg.flush)
+        except BAD_MESSAGE as exc:  # a degenerate keyframe set (e.g. coincident cameras)
+            raise UserError(f'cannot choose MVS neighbours: {exc}') from exc
+        for w in scheduler.pop_warnings():
+            LOG.warning(w)
+        if job is None:
+            break
+        attempts += 1
+        kf = by_stamp[job.stamp]
+        t0 = time.perf_counter()
+        mvs = compute_depth_maps(job.views, options=cfg.refiner.mvs, depth_range=job.depth_range)[0]
+        t1 = time.perf_counter()
+        try:
+            r = refiner.refine_from_mvs(job.view, mvs.depth)
+        except RefineError as exc:
+            scheduler.failed(job)
+            failures[job.stamp] = f'{len(job.neighbours)} neighbours, MVS {mvs.reason or "ok"}: {exc}'
+            LOG.warning('keyframe %d ns not refined: %s', job.stamp, failures[job.stamp])
+            kf.timings_s = {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}
+            continue
+        t2 = time.perf_counter()
+        scheduler.done(job)
+        failures.pop(job.stamp, None)
+        kf.depth = np.where(r.depth > 0, r.depth, np.float32(np.nan)).astype(np.float32)
+        kf.neighbours = job.neighbours
+        kf.timings_s = {'mvs': t1 - t0, 'refine': t2 - t1}
+        if progress is not None:
+            progress('keyframes', len(scheduler.refined()), len(keyframes))
+    for s in scheduler.unrefined():
+        failures.setdefault(s, 'no neighbour with enough overlap and parallax')
+    return {'attempts': attempts, 'not_refined': {str(s): why for s, why in sorted(failures.items())}}

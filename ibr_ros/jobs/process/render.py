@@ -1,0 +1,88 @@
+"""Novel views along the keyframe path, rendered from the refined keyframes (the view_renderer)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.jobs.demo import interpolate_path
+from ibr_ros.jobs.process.frames import Keyframe
+from ibr_ros.jobs.process.options import Progress
+from ibr_ros.jobs.process.params import _Configs
+
+
+@dataclass
+class NovelView:
+    """One query along the path: ``stamp`` (ns), pose, and the reply (None when unanswered)."""
+
+    stamp: int
+    t_wc: np.ndarray
+    camera: PinholeCamera | None = None
+    rgb: np.ndarray | None = None
+    valid: np.ndarray | None = None
+    reason: str | None = None
+    render_s: float = 0.0
+
+
+def _path_stamps(stamps: list[int], n: int) -> list[int]:
+    """Stamps of :func:`interpolate_path`'s poses: the midpoints of the same keyframe pairs."""
+    mids = [(a + b) // 2 for a, b in itertools.pairwise(stamps)]
+    if not mids:
+        return []
+    pick = np.unique(np.linspace(0, len(mids) - 1, min(n, len(mids))).round().astype(int))
+    return [mids[i] for i in pick]
+
+
+def _render_all(
+    keyframes: list[Keyframe], cfg: _Configs, n_views: int, progress: Progress | None
+) -> tuple[list[NovelView], dict[str, object]]:
+    """The view_renderer's model of the refined keyframes and its replies to the path queries."""
+    model = [k for k in keyframes if k.depth is not None]
+    unusable: dict[str, str] = {}
+    info: dict[str, object] = {'model_views': len(model), 'unusable_views': unusable}
+    if not model:
+        return [], info
+    model_frame = model[0].pose_frame
+    renderer = NovelViewRenderer([], cfg.render)
+    t0 = time.perf_counter()
+    for k in model:
+        if k.pose_frame != model_frame:
+            unusable[str(k.stamp)] = f'frame {k.pose_frame!r}, the model is in {model_frame!r}'
+            continue
+        i = renderer.add_view(
+            SourceView(k.rgb, k.depth, k.camera, k.t_wc, name=str(k.stamp), stamp=k.stamp * 1e-9)
+        )
+        renderer.prepare([i])
+        if (why := renderer.skip_reason(i)) is not None:
+            unusable[str(k.stamp)] = why
+    info['prepare_s'] = time.perf_counter() - t0
+    last = model[-1].camera
+    w, h, hfov = cfg.out_size
+    camera = (
+        PinholeCamera(last.width, last.height, last.k)
+        if not (w or h or hfov)
+        else PinholeCamera.from_fov(w or last.width, h or last.height, hfov or last.hfov_deg)
+    )
+    poses = interpolate_path([k.t_wc for k in model], n_views)
+    stamps = _path_stamps([k.stamp for k in model], n_views)
+    views = [NovelView(s, t) for s, t in zip(stamps, poses, strict=True)]
+    for j, v in enumerate(views):
+        t1 = time.perf_counter()
+        out = renderer.render(v.t_wc, camera)
+        v.render_s = time.perf_counter() - t1
+        if out.reason is not None:
+            v.reason = f'unrenderable: {out.reason}'
+        elif (frac := float(out.valid.mean())) < cfg.min_valid:
+            v.reason = f'incomplete: {frac:.0%} rendered (< min_valid_fraction {cfg.min_valid})'
+        else:
+            v.camera, v.rgb, v.valid = camera, out.rgb, out.valid
+        if progress is not None:
+            progress('views', j + 1, len(views))
+    info['model_frame'] = model_frame
+    info['camera'] = {'width': camera.width, 'height': camera.height, 'hfov_deg': camera.hfov_deg}
+    return views, info
