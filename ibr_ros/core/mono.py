@@ -17,13 +17,16 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from ibr_ros.core.camera import PinholeCamera
+
+if TYPE_CHECKING:
+    import onnxruntime as ort
 
 __all__ = [
     'PRESETS',
@@ -33,6 +36,8 @@ __all__ = [
     'OnnxMonoDepth',
     'fit_ground_plane',
     'nearness_to_g',
+    'onnx_session',
+    'to_input_tensor',
 ]
 
 LOG = logging.getLogger(__name__)
@@ -138,21 +143,45 @@ def nearness_to_g(
     return g
 
 
+def onnx_session(path: Path | str | None, threads: int, what: str = 'model') -> ort.InferenceSession:
+    """An onnxruntime CPU session of ``path`` with ``threads`` intra-op threads and one inter-op thread.
+
+    Raises MonoModelError (naming ``what`` and the path) for a missing file or a model onnxruntime
+    cannot load.
+    """
+    import onnxruntime as ort  # lazily: only callers with a model pay for the import
+
+    if path is None or not Path(path).is_file():
+        raise MonoModelError(f'{what} path {path} is not a file')
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads
+    opts.inter_op_num_threads = 1
+    try:
+        return ort.InferenceSession(str(path), opts, providers=['CPUExecutionProvider'])
+    except Exception as exc:  # onnxruntime raises its own exception types
+        raise MonoModelError(f'{path}: cannot load ONNX model ({exc})') from exc
+
+
+def to_input_tensor(
+    resized: NDArray[np.uint8],
+    color_order: Literal['RGB', 'BGR'],
+    mean: tuple[float, float, float],
+    std: tuple[float, float, float],
+    layout: Literal['NCHW', 'NHWC'],
+) -> NDArray[np.float32]:
+    """A batch of one: an RGB uint8 image already at the model size, reordered, in [0, 1], normalised
+    ``(x - mean) / std`` and laid out as ``layout``."""
+    x = resized[..., ::-1] if color_order == 'BGR' else resized
+    x = (x.astype(np.float32) / 255.0 - np.float32(mean)) / np.float32(std)
+    x = x.transpose(2, 0, 1) if layout == 'NCHW' else x
+    return np.ascontiguousarray(x[None], dtype=np.float32)
+
+
 class OnnxMonoDepth:
     """Monocular depth from an ONNX model with onnxruntime on the CPU."""
 
     def __init__(self, spec: MonoModelSpec) -> None:
-        import onnxruntime as ort
-
-        if spec.path is None or not Path(spec.path).is_file():
-            raise MonoModelError(f'model path {spec.path} is not a file')
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = spec.threads
-        opts.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(str(spec.path), opts, providers=['CPUExecutionProvider'])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise MonoModelError(f'{spec.path}: cannot load ONNX model ({exc})') from exc
+        self.session = onnx_session(spec.path, spec.threads)
         self.spec = spec
         inp = self.session.get_inputs()[0]
         self.input_name = inp.name
@@ -168,11 +197,8 @@ class OnnxMonoDepth:
         h, w = rgb.shape[:2]
         mw, mh = self.spec.model_size(w, h)
         x = cv2.resize(rgb, (mw, mh), interpolation=cv2.INTER_AREA if mw < w else cv2.INTER_LINEAR)
-        if self.spec.color_order == 'BGR':
-            x = x[..., ::-1]
-        x = (x.astype(np.float32) / 255.0 - np.float32(self.spec.mean)) / np.float32(self.spec.std)
-        x = x.transpose(2, 0, 1) if self.spec.layout == 'NCHW' else x
-        return np.ascontiguousarray(x[None], dtype=np.float32)
+        s = self.spec
+        return to_input_tensor(x, s.color_order, s.mean, s.std, s.layout)
 
     def predict_nearness(self, rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
         """Relative nearness (larger = nearer) at the image size; NaN where the model gives none."""

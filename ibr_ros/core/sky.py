@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.mono import IMAGENET_MEAN, IMAGENET_STD, MonoModelError
+from ibr_ros.core.mono import IMAGENET_MEAN, IMAGENET_STD, MonoModelError, onnx_session, to_input_tensor
 
 __all__ = [
     'SKY_PRESETS',
@@ -61,16 +61,7 @@ class OnnxSkySegmenter:
     """Sky mask from any ONNX segmentation model with a sky class (see :class:`SkySpec`)."""
 
     def __init__(self, spec: SkySpec) -> None:
-        import onnxruntime as ort
-
-        if spec.path is None or not Path(spec.path).is_file():
-            raise MonoModelError(f'sky model path {spec.path} is not a file')
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = spec.threads
-        try:
-            self.session = ort.InferenceSession(str(spec.path), opts, providers=['CPUExecutionProvider'])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise MonoModelError(f'{spec.path}: cannot load ONNX model ({exc})') from exc
+        self.session = onnx_session(spec.path, spec.threads, 'sky model')
         self.spec = spec
         self.input_name = self.session.get_inputs()[0].name
 
@@ -79,14 +70,9 @@ class OnnxSkySegmenter:
         s = self.spec
         h, w = rgb.shape[:2]
         size = s.input_size or (w, h)
-        x = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-        if s.color_order == 'BGR':
-            x = x[..., ::-1]
-        x = (x.astype(np.float32) / 255.0 - np.float32(s.mean)) / np.float32(s.std)
-        x = x.transpose(2, 0, 1) if s.layout == 'NCHW' else x
-        out = np.asarray(
-            self.session.run(None, {self.input_name: np.ascontiguousarray(x[None])})[s.output_index]
-        )
+        x = to_input_tensor(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), s.color_order, s.mean, s.std,
+                            s.layout)  # fmt: skip
+        out = np.asarray(self.session.run(None, {self.input_name: x})[s.output_index])
         out = out[0] if out.ndim == 4 else out
         if s.output == 'sky_logit':
             score = np.squeeze(out).astype(np.float32)
