@@ -49,11 +49,8 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Literal
 
-import rclpy
-from rclpy._rclpy_pybind11 import RCLError
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -65,10 +62,10 @@ from rosgraph_msgs.msg import Clock
 import msg_utils
 from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, TopicInfo, open_bag
 from ibr_ros.errors import UserError
-from ibr_ros.nodes.common import BadInput, declare, reliable_qos
+from ibr_ros.nodes.common import EXIT_BAD_CONFIG, BadInput, declare, reliable_qos, run_node
 from msg_utils.flavor import message_class
 
-EXIT_BAD_INPUT = 2
+EXIT_BAD_INPUT = EXIT_BAD_CONFIG  # a bag that cannot be played exits like a rejected parameter
 
 #: Encapsulation headers of plain CDR (big, little endian): what ROS 2 Jazzy publishes and records.
 CDR_HEADERS = (b'\x00\x00', b'\x00\x01')
@@ -514,32 +511,18 @@ class BagPlayer(Node):
         super().destroy_node()
 
 
+def play(node: BagPlayer) -> int:
+    """Spin ``node`` until its bag is played (the ``spin`` of :func:`run_node`); its exit code."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    node.start()
+    executor.spin_until_future_complete(node.finished)
+    return node.finished.result() if node.finished.done() else 0
+
+
 def main(args: list[str] | None = None) -> int:
     """Play the bag; 0 when done (or interrupted), 2 when the bag or a parameter is bad."""
-    try:
-        rclpy.init(args=args if args is not None else sys.argv)
-    except RCLError as exc:  # malformed --ros-args; rcl has logged the details
-        print(f'bag_player: {exc}', file=sys.stderr)
-        return EXIT_BAD_INPUT
-    node: BagPlayer | None = None
-    code = 0
-    try:
-        node = BagPlayer()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        node.start()
-        executor.spin_until_future_complete(node.finished)
-        code = node.finished.result() if node.finished.done() else 0
-    except (UserError, ValueError, ParameterException) as exc:
-        rclpy.logging.get_logger('bag_player').error(str(exc))
-        code = EXIT_BAD_INPUT
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(BagPlayer, args if args is not None else sys.argv, spin=play)
 
 
 if __name__ == '__main__':

@@ -15,6 +15,7 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -43,6 +44,7 @@ __all__ = [
     'run_node',
     'sensor_qos',
     'size_mismatch',
+    'spin_forever',
     'subscribe_field',
 ]
 
@@ -147,32 +149,46 @@ def subscribe_field(
     return node.create_subscription(msg_type, topic, callback, qos)
 
 
-def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
-    """Initialise rclpy, spin the node made by ``factory`` until Ctrl-C or shutdown, clean up.
+def spin_forever(node: Node) -> int:
+    """The default ``spin`` of :func:`run_node`: until Ctrl-C or shutdown; exit code 0."""
+    rclpy.spin(node)
+    return 0
 
-    Returns 0, or :data:`EXIT_BAD_CONFIG` when ``factory`` rejects its parameters (UserError,
-    ValueError, rclpy ParameterException): the reason is logged as one error line, no traceback.
+
+def run_node(
+    factory: Callable[[], Node],
+    args: Sequence[str] | None = None,
+    spin: Callable[[Any], int] = spin_forever,
+) -> int:
+    """Initialise rclpy, run ``spin(node)`` on the node made by ``factory``, clean up; its exit code.
+
+    Ctrl-C or an external shutdown give 0. Malformed ``--ros-args`` (rcl logs the details), or a
+    ``factory`` that rejects its parameters (UserError, ValueError, rclpy ParameterException), give
+    :data:`EXIT_BAD_CONFIG` with the reason as one error line, no traceback.
     """
-    rclpy.init(args=list(args) if args is not None else None)
+    module = sys.modules.get(getattr(factory, '__module__', ''))
+    name = Path(getattr(module, '__file__', None) or 'node').stem  # the node's module, also as __main__
+    try:
+        rclpy.init(args=list(args) if args is not None else None)
+    except RCLError as exc:
+        print(f'{name}: {exc}', file=sys.stderr)
+        return EXIT_BAD_CONFIG
     node = None
+    code = 0
     try:
         try:
             node = factory()
         except (UserError, ValueError, ParameterException) as exc:
-            module = sys.modules.get(getattr(factory, '__module__', ''))
-            name = Path(
-                getattr(module, '__file__', None) or 'node'
-            ).stem  # the node's module, also as __main__
             rclpy.logging.get_logger(name).error(f'cannot start: {exc}')
             return EXIT_BAD_CONFIG
-        rclpy.spin(node)
+        code = spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return code
 
 
 def size_mismatch(width: int, height: int, image_shape: tuple[int, ...], stamp: int) -> str | None:
