@@ -42,20 +42,13 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 import msg_utils  # noqa: E402
 from ibr_ros.core.geometry import matrix_from_rt  # noqa: E402
-from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
-from ibr_ros.core.synth import (  # noqa: E402
-    SceneConfig,
-    build_scene,
-    flight_camera,
-    make_trajectory,
-    render_view,
-    safe_altitude_range,
-)
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig  # noqa: E402
 from ibr_ros.graph import Graph, NodeSpec  # noqa: E402
 from ibr_ros.nodes.common import model_qos, reliable_qos  # noqa: E402
 
-W, H = 960, 540
-SOURCES = (24, 27, 33, 36)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_render import SOURCES, H, W, orbit_scene  # noqa: E402  (the same scene as bench_render)
+
 PATH = (27, 33)
 RUNS = 50
 WARMUP = 5
@@ -79,11 +72,7 @@ def query_poses(samples: list, rng: np.random.Generator, n: int) -> list[np.ndar
 
 
 def main() -> int:
-    cfg = SceneConfig(seed=3)
-    scene = build_scene(cfg)
-    camera = flight_camera((W, H))
-    samples = make_trajectory('orbit', duration_s=3.0, seed=cfg.seed, altitude_range=safe_altitude_range(cfg))
-    frames = {i: render_view(scene, camera, samples[i].t_wc) for i in SOURCES}
+    camera, samples, frames, views = orbit_scene()
     rng = np.random.default_rng(0)
     warm = query_poses(samples, rng, WARMUP)
     poses = query_poses(samples, rng, RUNS)
@@ -93,9 +82,6 @@ def main() -> int:
     print(f'cpus: {os.cpu_count()}, load avg: {os.getloadavg()}')
 
     # Baseline renderer in this process, views prepared and kernels compiled before any timing.
-    views = [
-        SourceView(frames[i].rgb, frames[i].depth, camera, samples[i].t_wc, name=str(i)) for i in SOURCES
-    ]
     renderer = NovelViewRenderer(views, RenderConfig(n_segments=N_SEGMENTS))
     for t_wc in warm:
         renderer.render(t_wc, camera)

@@ -30,6 +30,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
 
+from ibr_ros.core.camera import PinholeCamera  # noqa: E402
 from ibr_ros.core.geometry import matrix_from_rt  # noqa: E402
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
 from ibr_ros.core.rephoto import score  # noqa: E402
@@ -62,15 +63,22 @@ def median_ms(fn: Callable[[int], object], runs: int = RUNS) -> tuple[float, flo
     return 1e3 * statistics.median(wall), 1e3 * statistics.median(cpu)
 
 
-def main() -> int:
+def orbit_scene(extra: tuple[int, ...] = ()) -> tuple[PinholeCamera, list, dict, list[SourceView]]:
+    """The benchmark scene (also used by ``bench_query.py``): the W x H camera, the orbit's samples,
+    the rendered frames ``SOURCES + extra`` (exact depth) and the source views of ``SOURCES``."""
     cfg = SceneConfig(seed=3)
     scene = build_scene(cfg)
     camera = flight_camera((W, H))
     samples = make_trajectory('orbit', duration_s=3.0, seed=cfg.seed, altitude_range=safe_altitude_range(cfg))
-    frames = {i: render_view(scene, camera, samples[i].t_wc) for i in (*SOURCES, HELD_OUT)}
+    frames = {i: render_view(scene, camera, samples[i].t_wc) for i in (*SOURCES, *extra)}
     views = [
         SourceView(frames[i].rgb, frames[i].depth, camera, samples[i].t_wc, name=str(i)) for i in SOURCES
     ]
+    return camera, samples, frames, views
+
+
+def main() -> int:
+    camera, samples, frames, views = orbit_scene((HELD_OUT,))
     t_query = samples[HELD_OUT].t_wc
     rng = np.random.default_rng(0)
     poses = [t_query @ matrix_from_rt(np.eye(3), rng.uniform(-0.5, 0.5, 3)) for _ in range(RUNS)]
