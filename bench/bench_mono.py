@@ -14,10 +14,7 @@ exceeds the CPU count, a run whose CPU time meets the target only warns).
 from __future__ import annotations
 
 import os
-import statistics
 import sys
-import time
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,6 +22,8 @@ import cv2
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
+
+from timing import median_ms  # noqa: E402
 
 from ibr_ros.core.mono import PRESETS, GroundPlanePrior, OnnxMonoDepth  # noqa: E402
 from ibr_ros.core.sky import SKY_PRESETS, OnnxSkySegmenter  # noqa: E402
@@ -36,34 +35,20 @@ RUNS = 21
 TARGET_MS = 150.0
 
 
-def median_ms(fn: Callable[[], object], runs: int = RUNS) -> tuple[float, float]:
-    """Median wall-clock and median process CPU time of ``fn()`` in milliseconds (after 2 warm-ups)."""
-    fn()
-    fn()
-    wall, cpu = [], []
-    for _ in range(runs):
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return 1000 * statistics.median(wall), 1000 * statistics.median(cpu)
-
-
 def main() -> int:
     sample = render_samples([EVAL_SEED_BASE], 1, (W, H))[0]
     rgb = sample.rgb
     depth = OnnxMonoDepth(replace(PRESETS['ibr_mono'], path=SHIPPED_MONO_MODEL, threads=1))
     sky = OnnxSkySegmenter(replace(SKY_PRESETS['ibr_mono'], path=SHIPPED_MONO_MODEL, threads=1))
     prior = GroundPlanePrior()
-    d_ms, d_cpu = median_ms(lambda: depth.predict_g(rgb))
-    s_ms, s_cpu = median_ms(lambda: sky.predict(rgb))
-    b_ms, b_cpu = median_ms(lambda: (depth.predict_g(rgb), sky.predict(rgb)))
-    p_ms, _ = median_ms(lambda: prior.predict_g(sample.camera, sample.t_wc))
+    d_ms, d_cpu = median_ms(lambda _: depth.predict_g(rgb), RUNS, warmup=2)
+    s_ms, s_cpu = median_ms(lambda _: sky.predict(rgb), RUNS, warmup=2)
+    b_ms, b_cpu = median_ms(lambda _: (depth.predict_g(rgb), sky.predict(rgb)), RUNS, warmup=2)
+    p_ms, _ = median_ms(lambda _: prior.predict_g(sample.camera, sample.t_wc), RUNS, warmup=2)
     full = OnnxMonoDepth(replace(PRESETS['ibr_mono'], path=SHIPPED_MONO_MODEL, threads=1, max_side=W))
-    f_ms, _ = median_ms(lambda: full.predict_g(rgb))
+    f_ms, _ = median_ms(lambda _: full.predict_g(rgb), RUNS, warmup=2)
     big = cv2.resize(rgb, (1228, 816), interpolation=cv2.INTER_LINEAR)
-    big_ms, _ = median_ms(lambda: depth.predict_g(big), runs=7)
+    big_ms, _ = median_ms(lambda _: depth.predict_g(big), 7, warmup=2)
     size_mb = SHIPPED_MONO_MODEL.stat().st_size / 1e6
     print(f'model {SHIPPED_MONO_MODEL.name}: {size_mb:.2f} MB, input {W}x{H}, 1 thread, median of {RUNS}')
     print(f'  depth pass (predict_g):        {d_ms:7.1f} ms (cpu {d_cpu:.1f} ms)')

@@ -17,11 +17,9 @@ the CPU count, a run whose single-thread CPU time meets the target only warns).
 from __future__ import annotations
 
 import os
-import statistics
 import sys
 import time
 import tracemalloc
-from collections.abc import Callable
 from pathlib import Path
 
 import numba
@@ -29,6 +27,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
+
+from timing import median_ms  # noqa: E402
 
 from ibr_ros.core.camera import PinholeCamera  # noqa: E402
 from ibr_ros.core.geometry import matrix_from_rt  # noqa: E402
@@ -49,18 +49,6 @@ TARGET_MS = 50.0
 TARGET_MB_PER_VIEW = 10.0
 SOURCES = (24, 27, 33, 36)
 HELD_OUT = 30
-
-
-def median_ms(fn: Callable[[int], object], runs: int = RUNS) -> tuple[float, float]:
-    """Median wall-clock and median process CPU time of ``fn(i)`` in milliseconds."""
-    wall, cpu = [], []
-    for i in range(runs):
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        fn(i)
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return 1e3 * statistics.median(wall), 1e3 * statistics.median(cpu)
 
 
 def orbit_scene(extra: tuple[int, ...] = ()) -> tuple[PinholeCamera, list, dict, list[SourceView]]:
@@ -133,7 +121,7 @@ def main() -> int:
         numba.set_num_threads(n)
         for name, r in renderers.items():
             r.render(poses[0], camera)
-            results[name][n] = median_ms(lambda i, r=r: r.render(poses[i], camera))
+            results[name][n] = median_ms(lambda i, r=r: r.render(poses[i], camera), RUNS)
     numba.set_num_threads(max_threads)
     load = os.getloadavg()[0]
     base = results['splat (nearest view)']

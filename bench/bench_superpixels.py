@@ -14,10 +14,7 @@ from __future__ import annotations
 
 import math
 import os
-import statistics
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -26,6 +23,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
+
+from timing import median_ms  # noqa: E402
 
 from ibr_ros.core.rephoto import shiftable_l1  # noqa: E402
 from ibr_ros.core.superpixels import slic  # noqa: E402
@@ -94,18 +93,6 @@ def numpy_slic(
     return ids.reshape(h, w)
 
 
-def median_ms(fn: Callable[[], object], runs: int = RUNS) -> tuple[float, float]:
-    """Median wall-clock and median process CPU time of ``fn`` in milliseconds."""
-    wall, cpu = [], []
-    for _ in range(runs):
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        fn()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-    return 1e3 * statistics.median(wall), 1e3 * statistics.median(cpu)
-
-
 def set_threads(n: int) -> None:
     numba.set_num_threads(n)
     cv2.setNumThreads(n)
@@ -128,14 +115,14 @@ def main() -> int:
     results: dict[int, tuple[float, float]] = {}
     for n in thread_counts:
         set_threads(n)
-        results[n] = median_ms(lambda: slic(img, n_segments=N_SEGMENTS))
+        results[n] = median_ms(lambda _: slic(img, n_segments=N_SEGMENTS), RUNS)
     set_threads(1)
     base_labels = numpy_slic(img, N_SEGMENTS)
-    base, _ = median_ms(lambda: numpy_slic(img, N_SEGMENTS), runs=20)
+    base, _ = median_ms(lambda _: numpy_slic(img, N_SEGMENTS), 20)
     rephoto = {}
     for n in thread_counts:
         set_threads(n)
-        rephoto[n] = median_ms(lambda: shiftable_l1(gt, synth, 7, 2))
+        rephoto[n] = median_ms(lambda _: shiftable_l1(gt, synth, 7, 2), RUNS)
     set_threads(max_threads)
     load = os.getloadavg()[0]
 
