@@ -81,12 +81,12 @@ import msg_utils
 from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
-from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.core.refine import DepthRefiner, RefineError
 from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
 from ibr_ros.core.sfm import SfmError
-from ibr_ros.core.sfm_session import ScaleHint, SfmSession
+from ibr_ros.core.sfm_session import SfmSession
 from ibr_ros.errors import UserError
-from ibr_ros.models import mono_spec, sky_spec
+from ibr_ros.node_config import refiner_config, sfm_settings
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,
@@ -100,8 +100,6 @@ from ibr_ros.nodes.common import (
 )
 
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
-SFM_MODES = ('auto', 'always', 'off')
-SFM_SCALES = ('none', 'baseline', 'altitude', 'depth')
 
 
 def colourise(depth: np.ndarray) -> np.ndarray:
@@ -172,16 +170,7 @@ class DepthRefinerNode(Node):
                              limits=(0, 100000)))  # fmt: skip
         sfm_scale = str(p('sfm_scale', 'none', "SfM scale: 'none', 'baseline', 'altitude' or 'depth'"))
         sfm_scale_m = float(p('sfm_scale_m', 0.0, 'the sfm_scale length in metres', limits=(0.0, 1e7)))
-        if self.sfm_mode not in SFM_MODES:
-            raise UserError(f"parameter sfm_mode must be 'auto', 'always' or 'off', got {self.sfm_mode!r}")
-        if sfm_scale not in SFM_SCALES:
-            raise UserError(
-                f"parameter sfm_scale must be 'none', 'baseline', 'altitude' or 'depth', got {sfm_scale!r}"
-            )
-        if sfm_scale != 'none' and sfm_scale_m <= 0:
-            raise UserError(
-                f'parameter sfm_scale_m must be > 0 with sfm_scale {sfm_scale!r}, got {sfm_scale_m}'
-            )
+        scale_hint = sfm_settings(self.sfm_mode, sfm_scale, sfm_scale_m)
         if self.num_workers > 1 and self.sfm_mode == 'always':
             raise UserError(
                 f"parameter sfm_mode 'always' needs num_workers 1 (one SfM registration per graph), "
@@ -193,7 +182,7 @@ class DepthRefinerNode(Node):
                 'num_workers > 1: sfm_mode auto acts as off (one SfM registration per graph)'
             )
         self.sfm = SfmSession(
-            scale_hint=ScaleHint(sfm_scale, sfm_scale_m) if sfm_scale != 'none' else None,  # type: ignore[arg-type]
+            scale_hint=scale_hint,
             max_side=sfm_max_side,
             redefine=False,  # published poses must keep their frame
         )
@@ -266,13 +255,8 @@ class DepthRefinerNode(Node):
         self, mono: str, mono_model: str, mono_preset: str, sky: str, sky_model: str, sky_preset: str
     ) -> DepthRefiner:
         """The refiner with the monocular and sky backends of the parameters; UserError naming the bad one."""
-        if mono not in ('plane', 'onnx'):
-            raise UserError(f"parameter mono must be 'plane' or 'onnx', got {mono!r}")
-        if sky not in ('fallback', 'onnx', 'none'):
-            raise UserError(f"parameter sky must be 'fallback', 'onnx' or 'none', got {sky!r}")
-        mono_spec_ = mono_spec(mono_model, mono_preset) if mono == 'onnx' else None
-        sky_spec_ = sky_spec(sky_model, sky_preset) if sky == 'onnx' else None
-        config = RefinerConfig(mono=mono, mono_model=mono_spec_, sky=sky, sky_model=sky_spec_, mvs=self.mvs)
+        config = refiner_config(mono, mono_model, mono_preset, sky, sky_model, sky_preset, self.mvs)
+        mono_spec_, sky_spec_ = config.mono_model, config.sky_model
         try:
             refiner = DepthRefiner(config)  # loads the mono model first, then the sky model
         except MonoModelError as exc:

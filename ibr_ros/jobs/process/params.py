@@ -4,8 +4,10 @@ configurations mapped from them."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import yaml
 
@@ -17,15 +19,23 @@ from ibr_ros.core.schedule import ScheduleConfig, parse_depth_range
 from ibr_ros.core.sfm_session import ScaleHint
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.models import mono_spec, sky_spec
+from ibr_ros.node_config import refiner_config, sfm_settings
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
+T = TypeVar('T')
 
 
 #: The nodes whose parameters ``ibr process`` reads.
 NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
-SFM_MODES = ('auto', 'always', 'off')
-SFM_SCALES = ('none', 'baseline', 'altitude', 'depth')
+REFINER_MODEL_PARAMETERS = ('mono', 'mono_model', 'mono_preset', 'sky', 'sky_model', 'sky_preset')
+
+
+def _named(node: str, fn: Callable[..., T], *args: object) -> T:
+    """``fn(*args)``, its UserError prefixed with ``node`` (whose parameter it names)."""
+    try:
+        return fn(*args)
+    except UserError as exc:
+        raise UserError(f'{node} {exc}') from exc
 
 
 def _section_targets(key: str) -> str | None:
@@ -160,28 +170,17 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
             far_ratio=float(dr['far_ratio']),
             mvs=mvs,
         )
-        sfm_mode, sfm_scale, sfm_scale_m = str(dr['sfm_mode']), str(dr['sfm_scale']), float(dr['sfm_scale_m'])
-        if sfm_mode not in SFM_MODES:
-            raise UserError(
-                f"depth_refiner parameter sfm_mode must be 'auto', 'always' or 'off', got {sfm_mode!r}"
-            )
-        if sfm_scale not in SFM_SCALES:
-            raise UserError(
-                "depth_refiner parameter sfm_scale must be 'none', 'baseline', 'altitude' or 'depth', "
-                f'got {sfm_scale!r}'
-            )
-        if sfm_scale != 'none' and sfm_scale_m <= 0:
-            raise UserError(
-                f'depth_refiner parameter sfm_scale_m must be > 0 with sfm_scale {sfm_scale!r}, '
-                f'got {sfm_scale_m}'
-            )
+        sfm_mode = str(dr['sfm_mode'])
+        scale_hint = _named(
+            'depth_refiner', sfm_settings, sfm_mode, str(dr['sfm_scale']), float(dr['sfm_scale_m'])
+        )
         sfm = {
             'pose_timeout_s': float(fs['pose_timeout_s']),
             'poseless_interval_s': float(fs['poseless_interval_s']),
             'sfm_mode': sfm_mode,
             'sfm_min_keyframes': int(dr['sfm_min_keyframes']),
             'sfm_max_side': int(dr['sfm_max_side']),
-            'sfm_scale': ScaleHint(sfm_scale, sfm_scale_m) if sfm_scale != 'none' else None,  # type: ignore[arg-type]
+            'sfm_scale': scale_hint,
         }
         if sfm['poseless_interval_s'] <= 0 or sfm['sfm_min_keyframes'] < 3 or sfm['sfm_max_side'] < 0:
             raise UserError(
@@ -189,17 +188,8 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
                 f'sfm_max_side >= 0, got {sfm["poseless_interval_s"]}, {sfm["sfm_min_keyframes"]}, '
                 f'{sfm["sfm_max_side"]}'
             )
-        mono, sky = str(dr['mono']), str(dr['sky'])
-        if mono not in ('plane', 'onnx'):
-            raise UserError(f"depth_refiner parameter mono must be 'plane' or 'onnx', got {mono!r}")
-        if sky not in ('fallback', 'onnx', 'none'):
-            raise UserError(f"depth_refiner parameter sky must be 'fallback', 'onnx' or 'none', got {sky!r}")
-        refiner = RefinerConfig(
-            mono=mono,  # type: ignore[arg-type]
-            mono_model=mono_spec(str(dr['mono_model']), str(dr['mono_preset'])) if mono == 'onnx' else None,
-            sky=sky,  # type: ignore[arg-type]
-            sky_model=sky_spec(str(dr['sky_model']), str(dr['sky_preset'])) if sky == 'onnx' else None,
-            mvs=mvs,
+        refiner = _named(
+            'depth_refiner', refiner_config, *(str(dr[k]) for k in REFINER_MODEL_PARAMETERS), mvs
         )
         render = RenderConfig(
             renderer=str(vr['renderer']),  # type: ignore[arg-type]
