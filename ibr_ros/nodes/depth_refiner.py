@@ -127,19 +127,17 @@ class DepthRefinerNode(Node):
             p('num_workers', 1, 'refiner processes sharing the keyframes', limits=(1, 1024))
         )
         self.worker_index = int(p('worker_index', 0, 'this process: 0 .. num_workers - 1', limits=(0, 1023)))
-        self.min_neighbours = int(p('min_neighbours', 2, 'neighbours needed to refine', limits=(1, 16)))
+        min_neighbours = int(p('min_neighbours', 2, 'neighbours needed to refine', limits=(1, 16)))
         max_nb = int(p('max_neighbours', 4, 'MVS source views per keyframe', limits=(1, 16)))
         self.flush_after_s = float(
             p('flush_after_s', 5.0, 'refine with fewer neighbours after this quiet time (s), 0 = never',
               limits=(0.0, 1e6))
         )  # fmt: skip
-        self.refine_again = bool(p('refine_again', False, 'refine again when more neighbours arrive'))
+        refine_again = bool(p('refine_again', False, 'refine again when more neighbours arrive'))
         rng = p('depth_range', [0.0, 0.0], 'MVS [near, far] in metres; [0, 0] = automatic')
-        self.scene_depth = float(
-            p('scene_depth_m', 0.0, 'scene depth hint (m), 0 = estimate', limits=(0.0, 1e6))
-        )
-        self.near_ratio = float(p('near_ratio', 0.25, 'near = this x scene depth', limits=(1e-3, 1.0)))
-        self.far_ratio = float(p('far_ratio', 4.0, 'far = this x scene depth', limits=(1.0, 1e4)))
+        scene_depth = float(p('scene_depth_m', 0.0, 'scene depth hint (m), 0 = estimate', limits=(0.0, 1e6)))
+        near_ratio = float(p('near_ratio', 0.25, 'near = this x scene depth', limits=(1e-3, 1.0)))
+        far_ratio = float(p('far_ratio', 4.0, 'far = this x scene depth', limits=(1.0, 1e4)))
         self.publish_debug = bool(p('publish_debug', False, 'publish depth/* debug images'))
         self.max_pending = int(
             p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
@@ -197,16 +195,15 @@ class DepthRefinerNode(Node):
             ScheduleConfig(
                 num_workers=self.num_workers,
                 worker_index=self.worker_index,
-                min_neighbours=self.min_neighbours,
-                refine_again=self.refine_again,
+                min_neighbours=min_neighbours,
+                refine_again=refine_again,
                 depth_range=parse_depth_range(rng),
-                scene_depth_m=self.scene_depth,
-                near_ratio=self.near_ratio,
-                far_ratio=self.far_ratio,
+                scene_depth_m=scene_depth,
+                near_ratio=near_ratio,
+                far_ratio=far_ratio,
                 mvs=self.mvs,
             )
         )
-        self.depth_range = self.schedule.config.depth_range
         self.refiner = self._make_refiner(mono, mono_model, mono_preset, sky, sky_model, sky_preset)
         self.bad = BadInput(self)
         self.frames = StampAssembler(
@@ -247,8 +244,8 @@ class DepthRefinerNode(Node):
         self._worker.start()
         self.get_logger().info(
             f'worker {self.worker_index}/{self.num_workers}: refining keyframes with >= '
-            f'{self.min_neighbours} of up to {max_nb} neighbours; '
-            f'depth range {self.depth_range or "automatic"}; SfM mode {self.sfm_mode}'
+            f'{min_neighbours} of up to {max_nb} neighbours; '
+            f'depth range {self.schedule.config.depth_range or "automatic"}; SfM mode {self.sfm_mode}'
         )
 
     def _make_refiner(
@@ -385,7 +382,6 @@ class DepthRefinerNode(Node):
                 )
             with self._lock:
                 self.schedule = RefineScheduler(replace(cfg, depth_range=None, scene_depth_m=0.0))
-            self.depth_range = None
             self.unit = 'sfm units'
         world = 'map' if u.frame == 'enu' else 'sfm'
         with self._lock:
