@@ -389,6 +389,23 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
     return pos, best, second
 
 
+@njit(cache=True)
+def _transfer(ka_inv, r_ba, t_ba, kb, u, v, d):
+    """Pixel ``(u, v)`` of camera a at z-depth ``d`` seen by camera b: ``(u_b, v_b, z_b)``.
+
+    ``ka_inv``: a's inverse intrinsics; ``r_ba``, ``t_ba``: a's frame into b's; ``kb``: b's intrinsics
+    (skew allowed). ``u_b, v_b`` are meaningless when ``z_b <= 1e-9`` (behind b).
+    """
+    px = (ka_inv[0, 0] * u + ka_inv[0, 1] * v + ka_inv[0, 2]) * d
+    py = (ka_inv[1, 0] * u + ka_inv[1, 1] * v + ka_inv[1, 2]) * d
+    qx = r_ba[0, 0] * px + r_ba[0, 1] * py + r_ba[0, 2] * d + t_ba[0]
+    qy = r_ba[1, 0] * px + r_ba[1, 1] * py + r_ba[1, 2] * d + t_ba[1]
+    qz = r_ba[2, 0] * px + r_ba[2, 1] * py + r_ba[2, 2] * d + t_ba[2]
+    if qz <= 1e-9:
+        return 0.0, 0.0, qz
+    return (kb[0, 0] * qx + kb[0, 1] * qy) / qz + kb[0, 2], (kb[1, 1] * qy) / qz + kb[1, 2], qz
+
+
 @njit(cache=True, parallel=True)
 def _consistency(d_i, ki, ki_inv, r_ji, t_ji, d_j, kj, kj_inv, r_ij, t_ij, max_px, max_rel, count):
     """Add 1 to ``count`` where view j's depth agrees with view i's after a forward-backward trip.
@@ -405,15 +422,9 @@ def _consistency(d_i, ki, ki_inv, r_ji, t_ji, d_j, kj, kj_inv, r_ij, t_ij, max_p
             d = d_i[y, x]
             if not d > 0.0:
                 continue
-            px = (ki_inv[0, 0] * x + ki_inv[0, 1] * y + ki_inv[0, 2]) * d
-            py = (ki_inv[1, 0] * x + ki_inv[1, 1] * y + ki_inv[1, 2]) * d
-            qx = r_ji[0, 0] * px + r_ji[0, 1] * py + r_ji[0, 2] * d + t_ji[0]
-            qy = r_ji[1, 0] * px + r_ji[1, 1] * py + r_ji[1, 2] * d + t_ji[1]
-            qz = r_ji[2, 0] * px + r_ji[2, 1] * py + r_ji[2, 2] * d + t_ji[2]
+            uj, vj, qz = _transfer(ki_inv, r_ji, t_ji, kj, x, y, d)
             if qz <= 1e-9:
                 continue
-            uj = (kj[0, 0] * qx + kj[0, 1] * qy) / qz + kj[0, 2]
-            vj = (kj[1, 1] * qy) / qz + kj[1, 2]
             if not (-0.5 <= uj < wj - 0.5 and -0.5 <= vj < hj - 0.5):
                 continue
             dj = d_j[math.floor(vj + 0.5), math.floor(uj + 0.5)]
@@ -428,15 +439,9 @@ def _consistency(d_i, ki, ki_inv, r_ji, t_ji, d_j, kj, kj_inv, r_ij, t_ij, max_p
                 top = 1.0 / q00 + fx * (1.0 / q01 - 1.0 / q00)
                 bot = 1.0 / q10 + fx * (1.0 / q11 - 1.0 / q10)
                 dj = 1.0 / (top + fy * (bot - top))
-            sx = (kj_inv[0, 0] * uj + kj_inv[0, 1] * vj + kj_inv[0, 2]) * dj
-            sy = (kj_inv[1, 0] * uj + kj_inv[1, 1] * vj + kj_inv[1, 2]) * dj
-            bx = r_ij[0, 0] * sx + r_ij[0, 1] * sy + r_ij[0, 2] * dj + t_ij[0]
-            by = r_ij[1, 0] * sx + r_ij[1, 1] * sy + r_ij[1, 2] * dj + t_ij[1]
-            bz = r_ij[2, 0] * sx + r_ij[2, 1] * sy + r_ij[2, 2] * dj + t_ij[2]
+            u2, v2, bz = _transfer(kj_inv, r_ij, t_ij, ki, uj, vj, dj)
             if bz <= 1e-9:
                 continue
-            u2 = (ki[0, 0] * bx + ki[0, 1] * by) / bz + ki[0, 2]
-            v2 = (ki[1, 1] * by) / bz + ki[1, 2]
             if (u2 - x) ** 2 + (v2 - y) ** 2 <= max_px * max_px and abs(bz - d) <= max_rel * d:
                 count[y, x] += 1
 
