@@ -8,6 +8,7 @@ accept either. Conversions follow ibr_ros conventions (:mod:`ibr_ros.core.geomet
 
 from msg_utils.camera_info import camera_info_to_pinhole, pinhole_to_camera_info
 from msg_utils.compressed import (
+    camera_image_to_rgb,
     compressed_image_to_numpy,
     numpy_to_compressed_depth,
     numpy_to_compressed_image,
@@ -51,6 +52,7 @@ __all__ = [
     'Flavor',
     'GeoFix',
     'MessageError',
+    'camera_image_to_rgb',
     'camera_info_to_pinhole',
     'coerce_header',
     'compressed_image_to_numpy',

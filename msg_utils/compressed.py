@@ -23,9 +23,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from msg_utils.errors import MessageError
 from msg_utils.flavor import Flavor, coerce_header, new_message
-from msg_utils.image import message_data, set_uint8_data
+from msg_utils.image import image_to_rgb, message_data, set_uint8_data
 
 __all__ = [
+    'camera_image_to_rgb',
     'compressed_image_to_numpy',
     'numpy_to_compressed_depth',
     'numpy_to_compressed_image',
@@ -56,6 +57,19 @@ def compressed_image_to_numpy(msg: Any) -> NDArray[Any]:
     if _stored_as_bgr(fmt):
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB if image.shape[2] == 3 else cv2.COLOR_BGRA2RGB)
     return np.ascontiguousarray(image[:, :, :3])
+
+
+def camera_image_to_rgb(msg: Any) -> NDArray[np.uint8]:
+    """C-contiguous HxWx3 uint8 RGB of a camera frame: an 8-bit colour or mono ``Image``
+    (:func:`~msg_utils.image.image_to_rgb`) or a ``CompressedImage`` (:func:`compressed_image_to_numpy`);
+    mono is replicated. A ``compressedDepth`` or 16-bit frame raises MessageError naming its format."""
+    if hasattr(msg, 'format'):  # CompressedImage (Image has no such field)
+        rgb = compressed_image_to_numpy(msg)
+        if rgb.dtype != np.uint8:
+            raise MessageError(f'CompressedImage.format {msg.format!r} is not an 8-bit camera image')
+    else:
+        rgb = image_to_rgb(msg)
+    return np.ascontiguousarray(np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb)
 
 
 def _stored_as_bgr(fmt: str) -> bool:

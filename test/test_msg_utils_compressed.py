@@ -224,3 +224,24 @@ def test_depth_encoder_argument_errors():
         numpy_to_compressed_depth(np.zeros((2, 2)), encoding='32FC1')
     with pytest.raises(MessageError, match="encoding must be '16UC1' or '32FC1'"):
         numpy_to_compressed_depth(np.zeros((2, 2), np.uint16), encoding='mono16')
+
+
+@pytest.mark.parametrize('flavor', ['rclpy', 'rosbags'])
+def test_camera_image_to_rgb_takes_raw_and_compressed_frames(flavor) -> None:
+    from msg_utils import camera_image_to_rgb, numpy_to_image
+
+    rgb = smooth_rgb()
+    grey = rgb[..., 1].copy()
+    raw = camera_image_to_rgb(numpy_to_image(rgb, 'rgb8', flavor=flavor))
+    np.testing.assert_array_equal(raw, rgb)
+    mono = camera_image_to_rgb(numpy_to_image(grey, 'mono8', flavor=flavor))
+    np.testing.assert_array_equal(mono, np.repeat(grey[..., None], 3, axis=2))
+    png = camera_image_to_rgb(numpy_to_compressed_image(grey, 'png', encoding='mono8', flavor=flavor))
+    np.testing.assert_array_equal(png, np.repeat(grey[..., None], 3, axis=2))
+    jpeg = camera_image_to_rgb(numpy_to_compressed_image(rgb, 'jpeg', encoding='rgb8', flavor=flavor))
+    assert jpeg.shape == rgb.shape
+    assert jpeg.dtype == np.uint8
+    assert jpeg.flags.c_contiguous
+    depth = numpy_to_compressed_depth(np.full((8, 8), 2000, np.uint16), flavor=flavor)
+    with pytest.raises(MessageError, match=r'CompressedImage\.format'):
+        camera_image_to_rgb(depth)

@@ -52,17 +52,10 @@ def main(argv: list[str] | None = None) -> int:
     import msg_utils
     from ibr_ros.bag import open_bag
 
-    images = []
+    wanted = set(reg.indices.tolist())
     with open_bag(args.bag) as reader:
-        topic = reg.topics.image
-        for i, m in enumerate(reader.messages([topic])):
-            if i in set(reg.indices.tolist()):
-                msg = m.msg
-                images.append(
-                    msg_utils.compressed_image_to_numpy(msg)
-                    if reg.topics.image_compressed
-                    else msg_utils.image_to_rgb(msg)
-                )
+        messages = enumerate(reader.messages([reg.topics.image]))
+        images = [msg_utils.camera_image_to_rgb(m.msg) for i, m in messages if i in wanted]
     views = []
     for rgb, ok, t_wc in zip(images, res.registered, res.poses, strict=True):
         if not ok:

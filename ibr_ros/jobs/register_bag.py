@@ -152,14 +152,7 @@ def register_bag(
             if m.topic == topics.image:
                 if n_seen in wanted:
                     msg = m.msg
-                    rgb = (
-                        msg_utils.compressed_image_to_numpy(msg)
-                        if topics.image_compressed
-                        else msg_utils.image_to_rgb(msg)
-                    )
-                    if rgb.ndim == 2:
-                        rgb = np.repeat(rgb[:, :, None], 3, axis=2)
-                    images.append(rgb)
+                    images.append(msg_utils.camera_image_to_rgb(msg))
                     stamps.append(msg_utils.stamp_to_ns(msg.header.stamp))
                 n_seen += 1
             elif m.topic == topics.camera_info and camera is None:

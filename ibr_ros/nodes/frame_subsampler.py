@@ -161,7 +161,7 @@ class FrameSubsampler(Node):
         info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
         pose_type = Odometry if self.pose_type == 'odometry' else PoseStamped
         for msg_type, topic, field, convert in (
-            (*image_in, 'image', self._rgb),
+            (*image_in, 'image', msg_utils.camera_image_to_rgb),
             (CameraInfo, 'camera/camera_info', 'camera_info', info),
             (pose_type, 'camera/pose', 'pose', self._pose),
         ):
@@ -172,10 +172,6 @@ class FrameSubsampler(Node):
         self.pub_pose = self.create_publisher(PoseStamped, 'keyframes/pose', out)
         if self.pose_timeout > 0:
             self.create_timer(min(0.1, self.pose_timeout / 2), self._on_timer)
-
-    def _rgb(self, msg: Image | CompressedImage) -> np.ndarray:
-        rgb = msg_utils.compressed_image_to_numpy(msg) if self.compressed else msg_utils.image_to_rgb(msg)
-        return np.ascontiguousarray(np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb)
 
     def _pose(self, msg: PoseStamped | Odometry) -> tuple[np.ndarray, str]:
         convert = (

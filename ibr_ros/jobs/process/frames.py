@@ -16,7 +16,7 @@ import numpy as np
 
 import msg_utils
 from ibr_ros.bag import BagReader, detect_topics, open_bag
-from ibr_ros.bag.detect import COMPRESSED_IMAGE, ODOMETRY, POSE_STAMPED
+from ibr_ros.bag.detect import ODOMETRY, POSE_STAMPED
 from ibr_ros.core.camera import CameraError, PinholeCamera
 from ibr_ros.core.geometry import GeometryError
 from ibr_ros.core.keyframes import (
@@ -123,7 +123,6 @@ def _frames(
 
     fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
     assembler = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
-    compressed = topics['image_type'] == COMPRESSED_IMAGE
     to_pose = (
         msg_utils.odometry_to_matrix if topics['pose_type'] == ODOMETRY else msg_utils.pose_stamped_to_matrix
     )
@@ -145,14 +144,7 @@ def _frames(
                         continue
                     value: object = None  # not wanted: assembled as in the first pass, not decoded
                 else:
-                    rgb = (
-                        msg_utils.compressed_image_to_numpy(msg)
-                        if compressed
-                        else msg_utils.image_to_rgb(msg)
-                    )
-                    value = np.ascontiguousarray(
-                        np.repeat(rgb[..., None], 3, axis=2) if rgb.ndim == 2 else rgb
-                    )
+                    value = msg_utils.camera_image_to_rgb(msg)
                 reading.image_ok.append(True)
             elif field == 'camera_info':
                 value = (msg.header.frame_id, msg_utils.camera_info_to_pinhole(msg))
