@@ -122,9 +122,9 @@ def load_views(bag: Path, step: int, max_views: int, first: int = 0) -> list[tup
                 continue
             if m.timestamp_ns not in poses or m.timestamp_ns not in infos:
                 raise UserError(f'{bag}: image at {m.timestamp_ns} ns has no pose or camera_info')
-            rgb = msg_utils.compressed_image_to_numpy(m.msg)
+            rgb = msg_utils.camera_image_to_rgb(m.msg)
             cam = msg_utils.camera_info_to_pinhole(infos[m.timestamp_ns])
-            views.append((i, MvsView(np.ascontiguousarray(rgb), cam, poses[m.timestamp_ns])))
+            views.append((i, MvsView(rgb, cam, poses[m.timestamp_ns])))
     if len(views) < 2:
         raise UserError(f'{bag}: {len(views)} view(s) selected; need >= 2 (lower --step)')
     return views

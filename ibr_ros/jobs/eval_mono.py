@@ -245,9 +245,7 @@ def _photos(bag: Path | None, n: int) -> tuple[dict[str, NDArray[np.uint8]], lis
                 for i, m in enumerate(reader.messages(topics[:1])):
                     if i >= n:
                         break
-                    photos[f'{bag.name}_{i:02d}'] = np.ascontiguousarray(
-                        msg_utils.compressed_image_to_numpy(m.msg)
-                    )
+                    photos[f'{bag.name}_{i:02d}'] = msg_utils.camera_image_to_rgb(m.msg)
         except UserError as exc:
             notes.append(f'bag photos skipped ({exc})')
     return photos, notes
