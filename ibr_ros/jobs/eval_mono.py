@@ -52,6 +52,7 @@ __all__ = [
     'evaluate_mono',
     'evaluate_real_mvs',
     'evaluate_sample',
+    'remapped_predictions',
     'sparse_reference',
     'spearman',
 ]
@@ -107,6 +108,22 @@ def _iou(pred: NDArray[np.bool_], gt: NDArray[np.bool_]) -> tuple[int, int]:
     return int((pred & gt).sum()), int((pred | gt).sum())
 
 
+def remapped_predictions(
+    g_model: NDArray[np.uint16], ref: NDArray[np.float32], camera: PinholeCamera, t_wc: NDArray, seed: int
+) -> tuple[dict[str, NDArray[np.float32]], GroundPlanePrior]:
+    """The model's G, the ground-plane prior (plane fitted to the reference points in the world frame)
+    and a constant G, each remapped with the LUT from the sparse reference depth ``ref`` (0 = none)."""
+    ys, xs = np.nonzero(ref > 0)
+    pts_c = camera.backproject(np.c_[xs, ys], ref[ys, xs])
+    prior = GroundPlanePrior(fit_ground_plane(pts_c @ t_wc[:3, :3].T + t_wc[:3, 3], seed=seed))
+    preds = {
+        'model': lut_remap(g_model, ref),
+        'ground_plane': lut_remap(prior.predict_g(camera, t_wc), ref),
+        'constant': lut_remap(np.full_like(g_model, 32768), ref),
+    }
+    return preds, prior
+
+
 def evaluate_sample(
     s: MonoSample, depth_model: OnnxMonoDepth, sky_model: OnnxSkySegmenter, ref_fraction: float, seed: int
 ) -> tuple[dict[str, float], dict[str, NDArray]]:
@@ -119,16 +136,7 @@ def evaluate_sample(
     sky = sky_model.predict(s.rgb)
     ms = 1000.0 * (time.perf_counter() - t0)
     g_model = nearness_to_g(near)
-    ys, xs = np.nonzero(ref > 0)
-    pts_c = s.camera.backproject(np.c_[xs, ys], ref[ys, xs])
-    plane = fit_ground_plane(pts_c @ s.t_wc[:3, :3].T + s.t_wc[:3, 3], seed=seed)
-    prior = GroundPlanePrior(plane)
-    g_prior = prior.predict_g(s.camera, s.t_wc)
-    preds = {
-        'model': lut_remap(g_model, ref),
-        'ground_plane': lut_remap(g_prior, ref),
-        'constant': lut_remap(np.full_like(g_model, 32768), ref),
-    }
+    preds, prior = remapped_predictions(g_model, ref, s.camera, s.t_wc, seed)
     row: dict[str, float] = {'seed': s.seed, 'sky_fraction': float(s.sky.mean()), 'ms_model': ms}
     g = gt[mask].astype(np.float64)
     for name, d in preds.items():
@@ -160,14 +168,7 @@ def evaluate_real_mvs(path: Path, depth_model: OnnxMonoDepth, seed: int = 0) -> 
         ref = np.zeros_like(d, dtype=np.float32)
         ref[ys[ref_i], xs[ref_i]] = d[ys[ref_i], xs[ref_i]]
         camera = PinholeCamera(d.shape[1], d.shape[0], k)
-        pts_c = camera.backproject(np.c_[xs[ref_i], ys[ref_i]], ref[ys[ref_i], xs[ref_i]])
-        plane = fit_ground_plane(pts_c @ t_wc[:3, :3].T + t_wc[:3, 3], seed=seed)
-        g_prior = GroundPlanePrior(plane).predict_g(camera, t_wc)
-        preds = {
-            'model': lut_remap(depth_model.predict_g(rgb), ref),
-            'ground_plane': lut_remap(g_prior, ref),
-            'constant': lut_remap(np.full(d.shape, 32768, np.uint16), ref),
-        }
+        preds, _ = remapped_predictions(depth_model.predict_g(rgb), ref, camera, t_wc, seed)
         gt = d[ys[test_i], xs[test_i]].astype(np.float64)
         row: dict[str, float] = {'view': i, 'mvs_pixels': len(xs)}
         for name, pred in preds.items():
