@@ -20,7 +20,6 @@ import argparse
 import logging
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -61,14 +60,9 @@ def main(argv: list[str] | None = None) -> int:
         if not ok:
             continue
         und, cam = undistort_image(rgb, res.camera)
-        s = args.width / cam.width
-        h = round(cam.height * s)
-        small = cv2.resize(und, (args.width, h), interpolation=cv2.INTER_AREA)
-        k = cam.k.copy()
-        k[:2] *= s
-        k[0, 2] = (cam.k[0, 2] + 0.5) * s - 0.5
-        k[1, 2] = (cam.k[1, 2] + 0.5) * s - 0.5
-        views.append(MvsView(small, replace(cam, width=args.width, height=h, k=k, p=None), t_wc))
+        small_cam = cam.scaled(args.width / cam.width)
+        small = cv2.resize(und, (small_cam.width, small_cam.height), interpolation=cv2.INTER_AREA)
+        views.append(MvsView(small, small_cam, t_wc))
     t1 = time.monotonic()
     maps = compute_depth_maps(
         views,
