@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry import matrix_from_rt
 from ibr_ros.core.mono import fit_ground_plane
 from ibr_ros.core.sfm import SfmError, SfmOptions, SfmResult, register_images, robust_similarity
 
@@ -131,17 +132,7 @@ def _project_so3(m: NDArray[np.float64]) -> NDArray[np.float64]:
 def _transform_pose(m: NDArray[np.float64], t_wc: NDArray[np.float64]) -> NDArray[np.float64]:
     """``t_wc`` moved by the similarity ``m`` (4x4 ``[[s R, t], [0, 1]]``): still rigid."""
     s = float(np.cbrt(np.linalg.det(m[:3, :3])))
-    out = np.eye(4)
-    out[:3, :3] = (m[:3, :3] / s) @ t_wc[:3, :3]
-    out[:3, 3] = m[:3, :3] @ t_wc[:3, 3] + m[:3, 3]
-    return out
-
-
-def _similarity(s: float, r: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
-    m = np.eye(4)
-    m[:3, :3] = s * r
-    m[:3, 3] = t
-    return m
+    return matrix_from_rt((m[:3, :3] / s) @ t_wc[:3, :3], m[:3, :3] @ t_wc[:3, 3] + m[:3, 3])
 
 
 class SfmSession:
@@ -404,7 +395,7 @@ class SfmSession:
                 hint.kind if hint else 'baseline',
                 size,
             )
-        return _similarity(k, r, -k * r @ origin)
+        return matrix_from_rt(k * r, -k * r @ origin)
 
     def _fit_to_previous(
         self, new: dict[int, NDArray[np.float64]]
@@ -435,7 +426,7 @@ class SfmSession:
             xs, xd = src[inl] - src[inl].mean(0), dst[inl] - dst[inl].mean(0)
             den = float((xs**2).sum())
             s = float(np.sum((xs @ r.T) * xd) / den) if den > 0 else 0.0
-            return _similarity(s, r, dst[inl].mean(0) - s * r @ src[inl].mean(0)) if s > 0 else None
+            return matrix_from_rt(s * r, dst[inl].mean(0) - s * r @ src[inl].mean(0)) if s > 0 else None
 
         candidates = [by_orientation(np.ones(len(common), bool))]
         if len(common) >= 3:
