@@ -444,7 +444,7 @@ class SfmSession:
             )
         # Camera orientations are far better determined than a rotation from (near-collinear) centres.
         final = by_orientation(best_inl)
-        if final is not None and check(final).sum() >= best_inl.sum():
-            best, best_inl = final, check(final)
+        if final is not None and (final_inl := check(final)).sum() >= best_inl.sum():
+            best, best_inl = final, final_inl
         res = np.linalg.norm(src @ best[:3, :3].T + best[:3, 3] - dst, axis=1)[best_inl]
         return (best, float(np.sqrt(np.mean(res**2)))), 'ok'
