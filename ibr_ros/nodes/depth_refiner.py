@@ -102,6 +102,11 @@ from ibr_ros.nodes.common import (
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
 
 
+def nan_unknown(depth: np.ndarray) -> np.ndarray:
+    """``depth`` as float32 with NaN where it is not > 0 (REP-118 unknown)."""
+    return np.where(depth > 0, depth, np.float32(np.nan)).astype(np.float32)
+
+
 def colourise(depth: np.ndarray) -> np.ndarray:
     """rgb8 turbo colouring of inverse depth (2-98th percentile), black where unknown."""
     ok = np.isfinite(depth) & (depth > 0)
@@ -459,15 +464,15 @@ class DepthRefinerNode(Node):
         if self._stop.is_set():
             return False
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
-        depth = np.where(r.depth > 0, r.depth, np.float32(np.nan)).astype(np.float32)
-        self.pub_depth.publish(msg_utils.numpy_to_image(depth, '32FC1', header))
+        self.pub_depth.publish(msg_utils.numpy_to_image(nan_unknown(r.depth), '32FC1', header))
         info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
         if self.debug:
-            nan0 = lambda d: np.where(d > 0, d, np.float32(np.nan)).astype(np.float32)  # noqa: E731
             out = {
-                'depth/mvs': msg_utils.numpy_to_image(nan0(r.mvs), '32FC1', header),
-                'depth/mono_remapped': msg_utils.numpy_to_image(nan0(r.mono_remapped), '32FC1', header),
+                'depth/mvs': msg_utils.numpy_to_image(nan_unknown(r.mvs), '32FC1', header),
+                'depth/mono_remapped': msg_utils.numpy_to_image(
+                    nan_unknown(r.mono_remapped), '32FC1', header
+                ),
                 'depth/sky_mask': msg_utils.numpy_to_image(r.sky.astype(np.uint8) * 255, 'mono8', header),
                 'depth/preview': msg_utils.numpy_to_image(colourise(r.depth), 'rgb8', header),
                 'depth/mvs/preview': msg_utils.numpy_to_image(colourise(r.mvs), 'rgb8', header),
