@@ -229,7 +229,11 @@ class DepthRefinerNode(Node):
         qos = model_qos()
         for msg_type, field, convert in (
             (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),  # a copy, detached from m
-            (CameraInfo, 'camera_info', lambda m: (m.header.frame_id, msg_utils.camera_info_to_pinhole(m))),
+            (
+                CameraInfo,
+                'camera_info',
+                lambda m: (m.header.frame_id or 'camera_optical', msg_utils.camera_info_to_pinhole(m)),
+            ),
             (PoseStamped, 'pose', msg_utils.pose_stamped_to_matrix),
         ):
             if field == 'pose' and self.sfm_mode == 'always':
@@ -311,7 +315,7 @@ class DepthRefinerNode(Node):
             if not self.schedule.add(stamp, MvsView(image, camera, pose)):
                 self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
                 return
-            self.frame_ids[stamp] = frame_id or 'camera_optical'
+            self.frame_ids[stamp] = frame_id
             self._version += 1
             self._last_arrival = time.monotonic()
         self._wake.set()
@@ -326,7 +330,7 @@ class DepthRefinerNode(Node):
             if stamp in self._sfm_views or stamp in self.schedule:
                 self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
                 return
-            self._sfm_views[stamp] = (image, camera, frame_id or 'camera_optical')
+            self._sfm_views[stamp] = (image, camera, frame_id)
             self._sfm_queue.append(stamp)
             self._last_arrival = time.monotonic()
         self._wake.set()
