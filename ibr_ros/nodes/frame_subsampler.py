@@ -60,6 +60,12 @@ from ibr_ros.nodes.common import (
     subscribe_field,
 )
 
+#: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
+POSE_TYPES = {
+    'pose': (PoseStamped, msg_utils.pose_stamped_to_matrix),
+    'odometry': (Odometry, msg_utils.odometry_to_matrix),
+}
+
 
 def target_baseline(target_keyframes: int, expected_path_m: float) -> float | None:
     """The live keyframe baseline (m) for about ``target_keyframes`` over ``expected_path_m`` metres of
@@ -125,7 +131,7 @@ class FrameSubsampler(Node):
         self.expected_path = float(
             p('expected_path_m', 0.0, 'planned flight path length (m), for target_keyframes', **lim)
         )
-        if self.pose_type not in ('pose', 'odometry'):
+        if self.pose_type not in POSE_TYPES:
             raise ValueError(f"parameter pose_type must be 'pose' or 'odometry', got {self.pose_type!r}")
         self.baseline = target_baseline(self.target, self.expected_path)
         # The scene depth the baseline rule uses (None: min_baseline_m).
@@ -159,11 +165,12 @@ class FrameSubsampler(Node):
             else (Image, 'camera/image_raw')
         )
         info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
-        pose_type = Odometry if self.pose_type == 'odometry' else PoseStamped
+        pose_type, to_matrix = POSE_TYPES[self.pose_type]
+        pose = lambda m: (to_matrix(m), m.header.frame_id or 'map')  # noqa: E731
         for msg_type, topic, field, convert in (
             (*image_in, 'image', msg_utils.camera_image_to_rgb),
             (CameraInfo, 'camera/camera_info', 'camera_info', info),
-            (pose_type, 'camera/pose', 'pose', self._pose),
+            (pose_type, 'camera/pose', 'pose', pose),
         ):
             subscribe_field(self, msg_type, topic, qos, field, convert, self._put, self.bad)
         out = model_qos()
@@ -172,12 +179,6 @@ class FrameSubsampler(Node):
         self.pub_pose = self.create_publisher(PoseStamped, 'keyframes/pose', out)
         if self.pose_timeout > 0:
             self.create_timer(min(0.1, self.pose_timeout / 2), self._on_timer)
-
-    def _pose(self, msg: PoseStamped | Odometry) -> tuple[np.ndarray, str]:
-        convert = (
-            msg_utils.odometry_to_matrix if self.pose_type == 'odometry' else msg_utils.pose_stamped_to_matrix
-        )
-        return convert(msg), msg.header.frame_id or 'map'
 
     def _put(self, stamp: int, field: str, value: object) -> None:
         if field == 'pose':
