@@ -45,15 +45,14 @@ def _write_bag(
     events: list[tuple[int, int, str, object]] = []
     for k in keyframes:
         header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
+        info = msg_utils.pinhole_to_camera_info(k.camera, header, **rb)  # of the image and the depth map
         events.append((k.stamp, 0, 'image', msg_utils.numpy_to_image(k.rgb, 'rgb8', header, **rb)))
-        events.append((k.stamp, 1, 'camera_info', msg_utils.pinhole_to_camera_info(k.camera, header, **rb)))
+        events.append((k.stamp, 1, 'camera_info', info))
         pose = msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)
         events.append((k.stamp, 2, 'pose', pose))
         if k.depth is not None:
             events.append((k.stamp, 3, 'depth', msg_utils.numpy_to_image(k.depth, '32FC1', header, **rb)))
-            events.append(
-                (k.stamp, 4, 'depth_info', msg_utils.pinhole_to_camera_info(k.camera, header, **rb))
-            )
+            events.append((k.stamp, 4, 'depth_info', info))
     for v in views:
         query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)
         events.append((v.stamp, 5, 'query', query))
