@@ -174,19 +174,14 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         scale_hint = _named(
             'depth_refiner', sfm_settings, sfm_mode, str(dr['sfm_scale']), float(dr['sfm_scale_m'])
         )
-        sfm = {
-            'pose_timeout_s': float(fs['pose_timeout_s']),
-            'poseless_interval_s': float(fs['poseless_interval_s']),
-            'sfm_mode': sfm_mode,
-            'sfm_min_keyframes': int(dr['sfm_min_keyframes']),
-            'sfm_max_side': int(dr['sfm_max_side']),
-            'sfm_scale': scale_hint,
-        }
-        if sfm['poseless_interval_s'] <= 0 or sfm['sfm_min_keyframes'] < 3 or sfm['sfm_max_side'] < 0:
+        pose_timeout_s = float(fs['pose_timeout_s'])
+        poseless_interval_s = float(fs['poseless_interval_s'])
+        sfm_min_keyframes = int(dr['sfm_min_keyframes'])
+        sfm_max_side = int(dr['sfm_max_side'])
+        if poseless_interval_s <= 0 or sfm_min_keyframes < 3 or sfm_max_side < 0:
             raise UserError(
                 'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
-                f'sfm_max_side >= 0, got {sfm["poseless_interval_s"]}, {sfm["sfm_min_keyframes"]}, '
-                f'{sfm["sfm_max_side"]}'
+                f'sfm_max_side >= 0, got {poseless_interval_s}, {sfm_min_keyframes}, {sfm_max_side}'
             )
         refiner = _named(
             'depth_refiner', refiner_config, *(str(dr[k]) for k in REFINER_MODEL_PARAMETERS), mvs
@@ -224,5 +219,10 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         out_size=size,
         min_valid=float(vr['min_valid_fraction']),
         view_frame=str(vr['frame_id']),
-        **sfm,  # type: ignore[arg-type]
+        pose_timeout_s=pose_timeout_s,
+        poseless_interval_s=poseless_interval_s,
+        sfm_mode=sfm_mode,
+        sfm_min_keyframes=sfm_min_keyframes,
+        sfm_max_side=sfm_max_side,
+        sfm_scale=scale_hint,
     )
