@@ -115,15 +115,11 @@ class ViewRenderer(Node):
             self._warmup()
 
     def _on_params(self, params: list[Parameter]) -> SetParametersResult:
-        new = {'width': self.width, 'height': self.height, 'hfov_deg': self.hfov}
-        for prm in params:
-            if prm.name in INTRINSICS:
-                new[prm.name] = prm.value
-        if not (new['width'] >= 0 and new['height'] >= 0 and 0 <= new['hfov_deg'] < 180):
-            return SetParametersResult(
-                successful=False, reason='need width, height >= 0, 0 <= hfov_deg < 180'
-            )
-        self.width, self.height, self.hfov = int(new['width']), int(new['height']), float(new['hfov_deg'])
+        """Adopt new output intrinsics; rclpy has already checked them against their declared ranges."""
+        new = {prm.name: prm.value for prm in params if prm.name in INTRINSICS}
+        self.width = int(new.get('width', self.width))
+        self.height = int(new.get('height', self.height))
+        self.hfov = float(new.get('hfov_deg', self.hfov))
         return SetParametersResult(successful=True)
 
     def _warmup(self) -> None:
