@@ -239,7 +239,7 @@ class BagPlayer(Node):
         remap = parse_remaps(list(remaps or []))
         overrides = parse_topic_qos(list(topic_qos or []))
 
-        self.bag: BagReader = open_bag(self.bag_path).open()  # BagError names the path
+        self.bag: BagReader = open_bag(self.bag_path)  # BagError names the path
         available = self.bag.topics
         wanted = list(topics or []) or list(available)
         if missing := [t for t in wanted if t not in available]:
