@@ -262,18 +262,17 @@ class DepthRefinerNode(Node):
     ) -> DepthRefiner:
         """The refiner with the monocular and sky backends of the parameters; UserError naming the bad one."""
         config = refiner_config(mono, mono_model, mono_preset, sky, sky_model, sky_preset, self.mvs)
-        mono_spec_, sky_spec_ = config.mono_model, config.sky_model
+        mono_spec, sky_spec = config.mono_model, config.sky_model
         try:
             refiner = DepthRefiner(config)  # loads the mono model first, then the sky model
         except MonoModelError as exc:
-            spec = (
-                mono_spec_ if mono_spec_ is not None and str(exc).startswith(str(mono_spec_.path)) else None
-            )
-            bad = f'mono_model {mono_model!r}' if spec is not None else f'sky_model {sky_model!r}'
-            path = (spec or sky_spec_ or mono_spec_).path
+            if mono_spec is not None and str(exc).startswith(str(mono_spec.path)):
+                bad, path = f'mono_model {mono_model!r}', mono_spec.path
+            else:
+                bad, path = f'sky_model {sky_model!r}', (sky_spec or mono_spec).path
             raise UserError(f'parameter {bad}: {str(exc).removeprefix(f"{path}: ")}') from exc
-        used = [f'mono {mono}' + (f' ({mono_spec_.path.name})' if mono_spec_ else '')]
-        used.append(f'sky {sky}' + (f' ({sky_spec_.path.name})' if sky_spec_ else ''))
+        used = [f'mono {mono}' + (f' ({mono_spec.path.name})' if mono_spec else '')]
+        used.append(f'sky {sky}' + (f' ({sky_spec.path.name})' if sky_spec else ''))
         self.get_logger().info(f'depth refinement with {", ".join(used)}')
         return refiner
 
