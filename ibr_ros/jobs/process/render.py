@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import time
 from dataclasses import dataclass
 
@@ -10,7 +9,7 @@ import numpy as np
 
 from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, SourceView
-from ibr_ros.jobs.demo import interpolate_path
+from ibr_ros.jobs.demo import interpolate_path, path_pairs
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import _Configs
@@ -31,11 +30,7 @@ class NovelView:
 
 def _path_stamps(stamps: list[int], n: int) -> list[int]:
     """Stamps of :func:`interpolate_path`'s poses: the midpoints of the same keyframe pairs."""
-    mids = [(a + b) // 2 for a, b in itertools.pairwise(stamps)]
-    if not mids:
-        return []
-    pick = np.unique(np.linspace(0, len(mids) - 1, min(n, len(mids))).round().astype(int))
-    return [mids[i] for i in pick]
+    return [(stamps[i] + stamps[i + 1]) // 2 for i in path_pairs(len(stamps), n)]
 
 
 def _render_all(
