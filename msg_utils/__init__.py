@@ -28,6 +28,7 @@ from msg_utils.flavor import (
 from msg_utils.image import (
     ENCODINGS,
     depth_image_to_m,
+    depth_m_to_image,
     depth_m_to_mm,
     depth_mm_to_m,
     image_to_numpy,
@@ -57,6 +58,7 @@ __all__ = [
     'coerce_header',
     'compressed_image_to_numpy',
     'depth_image_to_m',
+    'depth_m_to_image',
     'depth_m_to_mm',
     'depth_mm_to_m',
     'fix_to_navsatfix',

@@ -22,6 +22,7 @@ from msg_utils.flavor import Flavor, coerce_header, is_rosbags_message, new_mess
 __all__ = [
     'ENCODINGS',
     'depth_image_to_m',
+    'depth_m_to_image',
     'depth_m_to_mm',
     'depth_mm_to_m',
     'image_to_numpy',
@@ -184,6 +185,15 @@ def depth_m_to_mm(depth_m: ArrayLike) -> NDArray[np.uint16]:
         mm = np.rint(m * 1000.0)
         ok = np.isfinite(mm) & (mm > 0) & (mm <= _MAX_MM)
     return np.where(ok, mm, 0).astype(np.uint16)
+
+
+def depth_m_to_image(depth_m: ArrayLike, header: Any = None, *, flavor: Flavor = 'rclpy') -> Any:
+    """``32FC1`` Image of HxW depth in metres; values that are not > 0 (0, negative, NaN) become NaN
+    (REP-118 unknown), +inf stays (far). The inverse of :func:`depth_image_to_m`."""
+    d = np.asarray(depth_m, dtype=np.float32)
+    with np.errstate(invalid='ignore'):
+        d = np.where(d > 0, d, np.float32(np.nan)).astype(np.float32, copy=False)
+    return numpy_to_image(d, '32FC1', header, flavor=flavor)
 
 
 def depth_image_to_m(msg: Any) -> NDArray[np.float32]:

@@ -13,6 +13,7 @@ from msg_utils import (
     ENCODINGS,
     MessageError,
     depth_image_to_m,
+    depth_m_to_image,
     depth_m_to_mm,
     depth_mm_to_m,
     image_to_numpy,
@@ -271,6 +272,20 @@ def test_depth_image_to_m(flavor):
     assert out.dtype == np.float32
     assert out.tolist() == [[0.0, 1.5, np.inf], [0.0, 0.0, 0.0]]
     assert out.flags.writeable
+
+
+@pytest.mark.parametrize('flavor', FLAVORS)
+def test_depth_m_to_image_marks_unknown_as_nan(flavor):
+    d = np.array([[0.0, 1.5, np.inf], [-2.0, np.nan, 40.0]], np.float32)
+    msg = depth_m_to_image(d, make_header(7, 'cam', flavor), flavor=flavor)
+    assert msg.encoding == '32FC1'
+    assert msg.header.frame_id == 'cam'
+    out = image_to_numpy(msg)
+    assert np.isnan(out[[0, 1, 1], [0, 0, 1]]).all()
+    assert out[0, 1] == 1.5
+    assert out[0, 2] == np.inf
+    assert out[1, 2] == 40.0
+    np.testing.assert_array_equal(depth_image_to_m(msg), np.where(d > 0, d, 0))
 
 
 def test_depth_image_to_m_rejects_colour():

@@ -102,11 +102,6 @@ from ibr_ros.nodes.common import (
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
 
 
-def nan_unknown(depth: np.ndarray) -> np.ndarray:
-    """``depth`` as float32 with NaN where it is not > 0 (REP-118 unknown)."""
-    return np.where(depth > 0, depth, np.float32(np.nan)).astype(np.float32)
-
-
 def colourise(depth: np.ndarray) -> np.ndarray:
     """rgb8 turbo colouring of inverse depth (2-98th percentile), black where unknown."""
     ok = np.isfinite(depth) & (depth > 0)
@@ -467,15 +462,13 @@ class DepthRefinerNode(Node):
         if self._stop.is_set():
             return False
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
-        self.pub_depth.publish(msg_utils.numpy_to_image(nan_unknown(r.depth), '32FC1', header))
+        self.pub_depth.publish(msg_utils.depth_m_to_image(r.depth, header))
         info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
         if self.debug:
             out = {
-                'depth/mvs': msg_utils.numpy_to_image(nan_unknown(r.mvs), '32FC1', header),
-                'depth/mono_remapped': msg_utils.numpy_to_image(
-                    nan_unknown(r.mono_remapped), '32FC1', header
-                ),
+                'depth/mvs': msg_utils.depth_m_to_image(r.mvs, header),
+                'depth/mono_remapped': msg_utils.depth_m_to_image(r.mono_remapped, header),
                 'depth/sky_mask': msg_utils.numpy_to_image(r.sky.astype(np.uint8) * 255, 'mono8', header),
                 'depth/preview': msg_utils.numpy_to_image(colourise(r.depth), 'rgb8', header),
                 'depth/mvs/preview': msg_utils.numpy_to_image(colourise(r.mvs), 'rgb8', header),

@@ -52,7 +52,7 @@ class Keyframe:
     camera_frame: str
     pose_frame: str
     reason: str
-    depth: np.ndarray | None = None  # refined, float32 metres (NaN unknown)
+    depth: np.ndarray | None = None  # refined, float32 metres (0 unknown)
     neighbours: tuple[int, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
     bag_t_wc: np.ndarray | None = None

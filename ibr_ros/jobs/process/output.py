@@ -51,7 +51,7 @@ def _write_bag(
         pose = msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)
         events.append((k.stamp, 2, 'pose', pose))
         if k.depth is not None:
-            events.append((k.stamp, 3, 'depth', msg_utils.numpy_to_image(k.depth, '32FC1', header, **rb)))
+            events.append((k.stamp, 3, 'depth', msg_utils.depth_m_to_image(k.depth, header, **rb)))
             events.append((k.stamp, 4, 'depth_info', info))
     for v in views:
         query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)

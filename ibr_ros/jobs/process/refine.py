@@ -5,8 +5,6 @@ from __future__ import annotations
 import logging
 import time
 
-import numpy as np
-
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError
@@ -58,7 +56,7 @@ def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | N
         t2 = time.perf_counter()
         scheduler.done(job)
         failures.pop(job.stamp, None)
-        kf.depth = np.where(r.depth > 0, r.depth, np.float32(np.nan)).astype(np.float32)
+        kf.depth = r.depth
         kf.neighbours = job.neighbours
         kf.timings_s = {'mvs': t1 - t0, 'refine': t2 - t1}
         if progress is not None:
