@@ -15,8 +15,10 @@ from ibr_ros.core.geometry import (
     look_at,
     matrix_from_rt,
     quaternion_from_rotation,
+    rotation_angle_deg,
     rotation_from_quaternion,
     rotation_from_ypr,
+    similarity_times_pose,
     validate_pose,
 )
 
@@ -104,3 +106,31 @@ def test_camera_scaled_pixel_centres():
 def test_camera_rejects_bad_parameters(kwargs, match):
     with pytest.raises(CameraError, match=match):
         PinholeCamera(10, 10, **kwargs)
+
+
+def test_rotation_angle_and_similarity_helpers() -> None:
+    """rotation_angle_deg, similarity_times_pose and core.sfm.similarity_from_orientations agree."""
+    from ibr_ros.core.sfm import similarity_from_orientations
+
+    r = rotation_from_ypr(0.3, -0.2, 0.1)
+    assert rotation_angle_deg(r, r) == pytest.approx(0.0, abs=1e-6)
+    turned = rotation_from_ypr(0.2 + math.radians(40), 0, 0)  # 40 deg more yaw about the world z axis
+    assert rotation_angle_deg(rotation_from_ypr(0.2, 0, 0), turned) == pytest.approx(40.0)
+    m = matrix_from_rt(2.5 * rotation_from_ypr(0.7, 0.1, -0.3), [1.0, -2.0, 3.0])
+    rng = np.random.default_rng(0)
+    poses = [
+        matrix_from_rt(rotation_from_ypr(*rng.uniform(-1, 1, 3)), rng.uniform(-10, 10, 3)) for _ in range(4)
+    ]
+    moved = [similarity_times_pose(m, p) for p in poses]
+    for p, q in zip(poses, moved, strict=True):
+        np.testing.assert_allclose(q[:3, 3], m[:3, :3] @ p[:3, 3] + m[:3, 3])
+        np.testing.assert_allclose(q[:3, :3] @ q[:3, :3].T, np.eye(3), atol=1e-12)  # still rigid
+    fit = similarity_from_orientations(
+        np.array([p[:3, 3] for p in poses]), np.array([q[:3, 3] for q in moved]),
+        np.array([p[:3, :3] for p in poses]), np.array([q[:3, :3] for q in moved]),
+    )  # fmt: skip
+    np.testing.assert_allclose(fit, m, atol=1e-9)
+    assert (
+        similarity_from_orientations(np.zeros((3, 3)), np.zeros((3, 3)), *[np.stack([np.eye(3)] * 3)] * 2)
+        is None
+    )

@@ -21,8 +21,10 @@ __all__ = [
     'look_at',
     'matrix_from_rt',
     'quaternion_from_rotation',
+    'rotation_angle_deg',
     'rotation_from_quaternion',
     'rotation_from_ypr',
+    'similarity_times_pose',
     'validate_pose',
 ]
 
@@ -88,6 +90,20 @@ def matrix_from_rt(r: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:
     m[:3, :3] = np.asarray(r, dtype=np.float64).reshape(3, 3)
     m[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3)
     return m
+
+
+def rotation_angle_deg(r_a: ArrayLike, r_b: ArrayLike) -> float:
+    """Angle (degrees) of the relative rotation ``r_a^T r_b`` of two 3x3 rotations."""
+    c = (np.trace(np.asarray(r_a).T @ np.asarray(r_b)) - 1.0) / 2.0
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+def similarity_times_pose(m: ArrayLike, t_wc: ArrayLike) -> NDArray[np.float64]:
+    """The rigid pose ``t_wc`` moved by the similarity ``m`` (4x4 ``[[s R, t], [0, 1]]``): the
+    camera centre goes to ``s R c + t`` and the orientation to ``R R_wc`` (still rigid)."""
+    m, t_wc = np.asarray(m, dtype=np.float64), np.asarray(t_wc, dtype=np.float64)
+    s = float(np.cbrt(np.linalg.det(m[:3, :3])))
+    return matrix_from_rt((m[:3, :3] / s) @ t_wc[:3, :3], m[:3, :3] @ t_wc[:3, 3] + m[:3, 3])
 
 
 def validate_pose(t_wc: ArrayLike, *, field: str = 'pose', tol: float = 1e-4) -> NDArray[np.float64]:

@@ -21,6 +21,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from ibr_ros.core.geometry import rotation_angle_deg
+
 __all__ = [
     'Decision',
     'IntervalSelector',
@@ -95,11 +97,6 @@ class Decision:
     blur: float = 0.0
 
 
-def _rotation_deg(r_a: NDArray[np.float64], r_b: NDArray[np.float64]) -> float:
-    c = (np.trace(r_a.T @ r_b) - 1.0) / 2.0
-    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
-
-
 class KeyframeSelector:
     """Online keyframe decisions, one frame at a time (state: the last keyframe and recent blur)."""
 
@@ -123,7 +120,7 @@ class KeyframeSelector:
             return self._keep(stamp_ns, t_wc, Decision(True, 'first', blur=blur))
         dt = (stamp_ns - self._last_stamp) * 1e-9
         base = float(np.linalg.norm(t_wc[:3, 3] - self._last_pose[:3, 3]))
-        rot = _rotation_deg(self._last_pose[:3, :3], t_wc[:3, :3])
+        rot = rotation_angle_deg(self._last_pose[:3, :3], t_wc[:3, :3])
         if dt < c.min_interval_s:
             return Decision(False, 'too_soon', base, rot, blur)
         need = c.baseline_ratio * scene_depth_m if scene_depth_m and scene_depth_m > 0 else c.min_baseline_m

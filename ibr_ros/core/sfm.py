@@ -50,6 +50,7 @@ __all__ = [
     'SfmResult',
     'register_images',
     'robust_similarity',
+    'similarity_from_orientations',
     'umeyama',
 ]
 
@@ -213,6 +214,27 @@ def umeyama(src: NDArray[np.float64], dst: NDArray[np.float64]) -> NDArray[np.fl
     m = np.eye(4)
     m[:3, :3] = s * r
     m[:3, 3] = mu_d - s * r @ mu_s
+    return m
+
+
+def similarity_from_orientations(
+    src: NDArray[np.float64], dst: NDArray[np.float64], r_src: NDArray[np.float64], r_dst: NDArray[np.float64]
+) -> NDArray[np.float64] | None:
+    """4x4 similarity ``[[s R, t], [0, 1]]`` taking cameras ``src`` (Nx3 centres, Nx3x3 orientations
+    ``r_src``) onto ``dst``, ``r_dst``: R averaged from the orientations (the SO(3) projection of
+    ``sum r_dst r_src^T``; well determined even for near-collinear centres, whose roll about the path
+    a centre fit leaves free), then s and t by least squares on the centres. None if s <= 0.
+    """
+    u, _, vt = np.linalg.svd(np.einsum('nij,nkj->ik', r_dst, r_src))
+    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
+    xs, xd = src - src.mean(0), dst - dst.mean(0)
+    den = float((xs**2).sum())
+    s = float(np.sum((xs @ r.T) * xd) / den) if den > 0 else 0.0
+    if not s > 0:
+        return None
+    m = np.eye(4)
+    m[:3, :3] = s * r
+    m[:3, 3] = dst.mean(0) - s * r @ src.mean(0)
     return m
 
 

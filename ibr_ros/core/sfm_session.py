@@ -48,9 +48,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import matrix_from_rt
+from ibr_ros.core.geometry import matrix_from_rt, rotation_angle_deg, similarity_times_pose
 from ibr_ros.core.mono import fit_ground_plane
-from ibr_ros.core.sfm import SfmError, SfmOptions, SfmResult, register_images, robust_similarity
+from ibr_ros.core.sfm import (
+    SfmError,
+    SfmOptions,
+    SfmResult,
+    register_images,
+    robust_similarity,
+    similarity_from_orientations,
+)
 
 __all__ = ['Frame', 'ScaleHint', 'SfmSession', 'SfmUpdate']
 
@@ -116,23 +123,6 @@ class SfmUpdate:
 class _View:
     rgb: NDArray[np.uint8]
     gps: NDArray[np.float64]
-
-
-def _rot_deg(r_a: NDArray[np.float64], r_b: NDArray[np.float64]) -> float:
-    c = (np.trace(r_a.T @ r_b) - 1.0) / 2.0
-    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
-
-
-def _project_so3(m: NDArray[np.float64]) -> NDArray[np.float64]:
-    u, _, vt = np.linalg.svd(m)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return u @ np.diag([1.0, 1.0, d]) @ vt
-
-
-def _transform_pose(m: NDArray[np.float64], t_wc: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``t_wc`` moved by the similarity ``m`` (4x4 ``[[s R, t], [0, 1]]``): still rigid."""
-    s = float(np.cbrt(np.linalg.det(m[:3, :3])))
-    return matrix_from_rt((m[:3, :3] / s) @ t_wc[:3, :3], m[:3, :3] @ t_wc[:3, 3] + m[:3, 3])
 
 
 class SfmSession:
@@ -291,7 +281,7 @@ class SfmSession:
             else:
                 return self._unchanged(f'new model rejected: {why}', t0, res)
         before = set() if reset else set(self._poses)
-        self._poses = {s: _transform_pose(m, p) for s, p in new.items()}
+        self._poses = {s: similarity_times_pose(m, p) for s, p in new.items()}
         self._frame = frame
         if reset:
             self.generation += 1
@@ -417,16 +407,11 @@ class SfmSession:
         def check(m: NDArray[np.float64]) -> NDArray[np.bool_]:
             s = float(np.cbrt(np.linalg.det(m[:3, :3])))
             res = np.linalg.norm(src @ m[:3, :3].T + m[:3, 3] - dst, axis=1)
-            rot = np.array([_rot_deg(m[:3, :3] / s @ a, b) for a, b in zip(r_src, r_dst)])
+            rot = np.array([rotation_angle_deg(m[:3, :3] / s @ a, b) for a, b in zip(r_src, r_dst)])
             return (res < thr) & (rot < self.max_rotation_deg)
 
         def by_orientation(inl: NDArray[np.bool_]) -> NDArray[np.float64] | None:
-            """Rotation averaged from the orientations (also for collinear centres), then scale and shift."""
-            r = _project_so3(np.einsum('nij,nkj->ik', r_dst[inl], r_src[inl]))
-            xs, xd = src[inl] - src[inl].mean(0), dst[inl] - dst[inl].mean(0)
-            den = float((xs**2).sum())
-            s = float(np.sum((xs @ r.T) * xd) / den) if den > 0 else 0.0
-            return matrix_from_rt(s * r, dst[inl].mean(0) - s * r @ src[inl].mean(0)) if s > 0 else None
+            return similarity_from_orientations(src[inl], dst[inl], r_src[inl], r_dst[inl])
 
         candidates = [by_orientation(np.ones(len(common), bool))]
         if len(common) >= 3:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from ibr_ros.core.geometry import rotation_angle_deg, similarity_times_pose
+from ibr_ros.core.sfm import similarity_from_orientations
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
 from ibr_ros.jobs.process.frames import Keyframe
@@ -50,15 +51,6 @@ def _label(bgr: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def _move(m: np.ndarray, t_wc: np.ndarray) -> np.ndarray:
-    """``t_wc`` moved by the similarity ``m`` (4x4 ``[[s R, t], [0, 1]]``), still rigid."""
-    s = float(np.cbrt(np.linalg.det(m[:3, :3])))
-    out = np.eye(4)
-    out[:3, :3] = m[:3, :3] / s @ t_wc[:3, :3]
-    out[:3, 3] = m[:3, :3] @ t_wc[:3, 3] + m[:3, 3]
-    return out
-
-
 def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, object]] | None:
     """SfM mode: the similarity from SfM's frame to the bag's poses (ground truth), None without them.
 
@@ -70,17 +62,16 @@ def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, obje
         LOG.info('SfM mode: the bag has no poses for all keyframes: no ground-truth evaluation')
         return None
     est, ref = (np.array([p[i][:3, 3] for p in pairs]) for i in (0, 1))
-    u, _, vt = np.linalg.svd(sum(g[:3, :3] @ e[:3, :3].T for e, g in pairs))
-    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
-    xs, xd = est - est.mean(0), ref - ref.mean(0)
-    scale = float(np.sum((xs @ r.T) * xd) / max(float(np.sum(xs**2)), 1e-12))
-    m = np.eye(4)
-    m[:3, :3], m[:3, 3] = scale * r, ref.mean(0) - scale * r @ est.mean(0)
+    m = similarity_from_orientations(
+        est, ref, np.array([e[:3, :3] for e, _ in pairs]), np.array([g[:3, :3] for _, g in pairs])
+    )
+    if m is None:
+        LOG.info('SfM mode: no similarity from the SfM frame to the bag poses: no ground-truth evaluation')
+        return None
+    scale = float(np.cbrt(np.linalg.det(m[:3, :3])))
+    r = m[:3, :3] / scale
     rms = float(np.sqrt(np.mean(np.sum((est @ m[:3, :3].T + m[:3, 3] - ref) ** 2, axis=1))))
-    rot = [
-        math.degrees(math.acos(np.clip((np.trace((r @ e[:3, :3]).T @ g[:3, :3]) - 1) / 2, -1.0, 1.0)))
-        for e, g in pairs
-    ]
+    rot = [rotation_angle_deg(r @ e[:3, :3], g[:3, :3]) for e, g in pairs]
     return m, {
         'scale': scale,
         'centre_rms_m': rms,
@@ -141,7 +132,7 @@ def _evaluate(
                 cam = next(
                     (k.camera for k in reversed(keyframes) if k.depth is not None), keyframes[-1].camera
                 )
-            truth = gt.render(_move(align[0], v.t_wc) if align is not None else v.t_wc, cam)
+            truth = gt.render(similarity_times_pose(align[0], v.t_wc) if align is not None else v.t_wc, cam)
             tiles.append(_label(cv2.cvtColor(truth.rgb, cv2.COLOR_RGB2BGR), 'ground truth'))
             if v.rgb is not None:
                 s = score(truth.rgb, v.rgb, valid_mask=v.valid, patch=7, shift=2)
