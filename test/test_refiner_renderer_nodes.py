@@ -325,11 +325,9 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
 
 def test_refiner_flush_refine_again_debug_and_poseless_frames(repo, bag, ros_env):
     """Few keyframes: refined with one neighbour after ``flush_after_s``, again when a third arrives."""
-    # sfm_pose_wait_s: the 3 pose-less frames must not turn on SfM mode when, under load, frame 0's
-    # image and camera_info are handled before its pose (4 frames then wait without any pose seen)
     proc = _node(
         repo, 'depth_refiner', ros_env, 'max_neighbours:=2', 'flush_after_s:=1.0', 'refine_again:=true',
-        'publish_debug:=true', 'sfm_pose_wait_s:=1000.0',
+        'publish_debug:=true',
     )  # fmt: skip
     rclpy.init()
     try:

@@ -117,3 +117,34 @@ def test_refiner_registers_and_refines_keyframes_without_poses(repo, keyframes):
         rels.append(float(np.median(np.abs(d[ok] - gt[ok]) / gt[ok])))
     print('median relative depth error per keyframe (after scale)', [round(r, 4) for r in rels])
     assert max(rels) < 0.1, rels
+
+
+def test_auto_sfm_starts_only_when_enough_keyframes_each_waited(ros_env, monkeypatch):
+    """'auto' counts a keyframe only once it has itself waited ``sfm_pose_wait_s``: a keyframe whose
+    image arrived just now (its pose may be on the way) does not complete ``sfm_min_keyframes``."""
+    import rclpy
+
+    from ibr_ros.nodes.depth_refiner import DepthRefinerNode
+
+    rclpy.init(args=['--ros-args', '-p', 'sfm_min_keyframes:=4', '-p', 'sfm_pose_wait_s:=2.0'])
+    node = None
+    try:
+        node = DepthRefinerNode()
+        partial = {'image': np.zeros((2, 2, 3), np.uint8), 'camera_info': ('cam', None)}
+        monkeypatch.setattr(node.frames, 'partial', lambda stamp: partial)
+        monkeypatch.setattr(node.frames, 'discard', lambda stamp: None)
+        added: list[int] = []
+        monkeypatch.setattr(node, '_add_poseless', lambda stamp, *rest: added.append(stamp))
+        now = time.monotonic()
+        node._waiting = {1: now - 3.0, 2: now - 3.0, 3: now - 3.0, 4: now}
+        node._maybe_start_sfm()
+        assert not node.sfm_active
+        assert added == []
+        node._waiting[4] = now - 2.5
+        node._maybe_start_sfm()
+        assert node.sfm_active
+        assert added == [1, 2, 3, 4]
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

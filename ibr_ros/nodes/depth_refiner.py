@@ -337,7 +337,8 @@ class DepthRefinerNode(Node):
         waiting = [
             s for s in sorted(self._waiting) if {'image', 'camera_info'} <= set(self.frames.partial(s))
         ]
-        if len(waiting) < self.sfm_min_keyframes or now - self._waiting[waiting[0]] < self.sfm_pose_wait_s:
+        waited = sum(now - self._waiting[s] >= self.sfm_pose_wait_s for s in waiting)
+        if waited < self.sfm_min_keyframes:  # each of them waited, not just the oldest
             return
         self.sfm_active = True
         self.get_logger().warning(
