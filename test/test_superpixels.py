@@ -7,7 +7,7 @@ import numba
 import numpy as np
 import pytest
 
-from ibr_ros.core.superpixels import SuperpixelStats, slic, superpixel_stats
+from ibr_ros.core.superpixels import SuperpixelStats, slic, split_at_depth_edges, superpixel_stats
 
 
 def natural_image(h: int, w: int, seed: int = 0) -> np.ndarray:
@@ -251,3 +251,61 @@ def test_stats_empty_labels_and_validation():
         superpixel_stats(labels - 1, depth)
     with pytest.raises(ValueError, match='n_labels'):
         superpixel_stats(labels, depth, n_labels=2)
+
+
+# ------------------------------------------------------------------------------------ depth edges
+
+
+def _components(labels: np.ndarray) -> int:
+    return sum(
+        cv2.connectedComponents((labels == k).astype(np.uint8), connectivity=4)[0] - 1
+        for k in np.unique(labels)
+    )
+
+
+def test_split_at_depth_edges_cuts_along_depth_steps_only():
+    rng = np.random.default_rng(0)
+    h, w = 60, 80
+    labels = (np.arange(h)[:, None] // 20 * 4 + np.arange(w)[None, :] // 20).astype(np.int32)  # 12 blocks
+    depth = np.full((h, w), 50.0, np.float32) * rng.uniform(0.995, 1.005, (h, w)).astype(np.float32)
+    depth[:, 30:] = 40.0  # a 22 % step through the blocks of column 1
+    depth[:8, :] = np.inf  # sky over the top row of blocks
+    depth[50:, 70:] = np.nan  # unknown: stays with the nearer part
+    out = split_at_depth_edges(labels, depth)
+    assert out.dtype == np.int32
+    assert out.shape == labels.shape
+    assert np.array_equal(np.unique(out), np.arange(out.max() + 1))
+    assert _components(out) == out.max() + 1  # every label one 4-connected region
+    # no label mixes the sides of the step, or sky with ground; noise (+-0.5 %) splits nothing
+    for k in range(out.max() + 1):
+        m = out == k
+        assert len(np.unique(labels[m])) == 1
+        finite = depth[m][np.isfinite(depth[m])]
+        assert finite.size == 0 or finite.max() / finite.min() < 1.02
+        assert np.isinf(depth[m]).all() or not np.isinf(depth[m]).any()
+    # 12 blocks + 3 split by the step + 4 top-row blocks with sky = 19
+    assert out.max() + 1 == 19
+    assert np.array_equal(split_at_depth_edges(labels, np.full((h, w), 7.0, np.float32)), labels)
+
+
+def test_split_at_depth_edges_merges_fragments_below_min_size():
+    labels = np.zeros((20, 20), np.int32)
+    depth = np.full((20, 20), 10.0, np.float32)
+    depth[5, 5] = 20.0  # one far pixel: a 1-px fragment
+    assert split_at_depth_edges(labels, depth, min_size=1).max() == 1
+    assert split_at_depth_edges(labels, depth, min_size=2).max() == 0
+    assert split_at_depth_edges(labels, depth, log_gap=1.0).max() == 0  # a step of log 2 < 1
+
+
+@pytest.mark.parametrize(
+    ('args', 'kwargs', 'match'),
+    [
+        ((np.zeros((4, 4), np.float32), np.ones((4, 4), np.float32)), {}, 'labels must be'),
+        ((np.zeros((4, 4), np.int32), np.ones((4, 5), np.float32)), {}, 'depth must be'),
+        ((np.zeros((4, 4), np.int32), np.ones((4, 4), np.float32)), {'log_gap': 0.0}, 'log_gap > 0'),
+        ((np.full((4, 4), -1, np.int32), np.ones((4, 4), np.float32)), {}, 'labels must be in'),
+    ],
+)
+def test_split_at_depth_edges_rejects_bad_input(args, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        split_at_depth_edges(*args, **kwargs)
