@@ -43,7 +43,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
 from ibr_ros.core.camera import PinholeCamera
@@ -315,43 +315,46 @@ def _bary_matrices(tri, out):
 
 @njit(cache=True)
 def _anchor_depth(r, t, a, sky, near):
-    """Novel z and angle (degrees) between source and novel rays at the anchor; z NaN if not in front."""
+    """Novel z, angle (degrees) between the source and novel rays at the anchor and the resolution term
+    ``max(0, (|a - C_s| - |a - C_n|) / |a - C_s|)``; z NaN if not in front, angle and term 0 for sky."""
     px = r[0, 0] * a[0] + r[0, 1] * a[1] + r[0, 2] * a[2]
     py = r[1, 0] * a[0] + r[1, 1] * a[1] + r[1, 2] * a[2]
     pz = r[2, 0] * a[0] + r[2, 1] * a[1] + r[2, 2] * a[2]
     if sky:
         if not pz > 1e-6 * math.sqrt(px * px + py * py + pz * pz):
-            return np.nan, 0.0
-        return np.inf, 0.0
+            return np.nan, 0.0, 0.0
+        return np.inf, 0.0, 0.0
     px += t[0]
     py += t[1]
     pz += t[2]
     if not pz > near:
-        return np.nan, 0.0
+        return np.nan, 0.0, 0.0
     # rays to the point from the source centre (t in the novel frame) and from the novel centre (0)
     qx, qy, qz = px - t[0], py - t[1], pz - t[2]
     nq = math.sqrt(qx * qx + qy * qy + qz * qz)
     npn = math.sqrt(px * px + py * py + pz * pz)
     c = (qx * px + qy * py + qz * pz) / max(nq * npn, 1e-300)
-    return pz, math.degrees(math.acos(min(1.0, max(-1.0, c))))
+    res = max(0.0, (nq - npn) / max(nq, 1e-300))
+    return pz, math.degrees(math.acos(min(1.0, max(-1.0, c)))), res
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _warp_kernel(
-    bm, ninv, usable, sky, anchor, s_off, s_xy, s_depth, s_weight, ki, kn, r, t, near, verts, z, pen, ok
+    bm, ninv, usable, sky, anchor, s_off, s_xy, s_depth, s_weight, ki, kn, r, t, near, verts, z, pen, res, ok
 ):
     """Per-query warp of all superpixels: reproject samples, accumulate the rhs, ``V = N^-1 rhs``."""
     ifx, ify, cx, cy = 1.0 / ki[0], 1.0 / ki[1], ki[2], ki[3]
     gx, gy, gcx, gcy = kn[0], kn[1], kn[2], kn[3]
-    for k in range(bm.shape[0]):
+    for k in prange(bm.shape[0]):
         ok[k] = False
         verts[k, :, :] = np.nan
         z[k] = np.nan
         pen[k] = np.inf
+        res[k] = np.inf
         if not usable[k]:
             continue
         inf = sky[k]
-        zk, ang = _anchor_depth(r, t, anchor[k], inf, near)
+        zk, ang, rk = _anchor_depth(r, t, anchor[k], inf, near)
         if zk != zk:
             continue
         r0 = r1 = r2 = r3 = r4 = r5 = 0.0
@@ -404,6 +407,7 @@ def _warp_kernel(
                 )
         z[k] = zk
         pen[k] = ang
+        res[k] = rk
         ok[k] = True
 
 
@@ -572,12 +576,15 @@ class WarpResult:
         vertices: ``(K, 3, 2)`` warped triangle vertices in novel-view pixels (NaN where not ok).
         depth: ``(K,)`` novel-view z of the superpixel's anchor (metres; ``+inf`` sky; NaN not ok).
         angle_deg: ``(K,)`` angle at the anchor between the source and novel rays (degrees; 0 sky).
+        resolution: ``(K,)`` how much farther the source camera is from the anchor than the novel
+            one, ``max(0, (|a - C_s| - |a - C_n|) / |a - C_s|)`` (ULR's resolution term; 0 sky).
         ok: ``(K,)`` warped and in front of the camera.
     """
 
     vertices: NDArray[np.float64]
     depth: NDArray[np.float64]
     angle_deg: NDArray[np.float64]
+    resolution: NDArray[np.float64]
     ok: NDArray[np.bool_]
 
 
@@ -602,6 +609,7 @@ def warp_superpixels(
     verts = np.empty((k, 3, 2))
     z = np.empty(k)
     pen = np.empty(k)
+    res = np.empty(k)
     ok = np.empty(k, np.bool_)
     _warp_kernel(
         model.bary,
@@ -621,6 +629,7 @@ def warp_superpixels(
         verts,
         z,
         pen,
+        res,
         ok,
     )
-    return WarpResult(vertices=verts, depth=z, angle_deg=pen, ok=ok)
+    return WarpResult(vertices=verts, depth=z, angle_deg=pen, resolution=res, ok=ok)
