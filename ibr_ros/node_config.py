@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from ibr_ros.core.mvs import MvsOptions
 from ibr_ros.core.refine import RefinerConfig
+from ibr_ros.core.render import RenderConfig
 from ibr_ros.core.sfm_session import ScaleHint
 from ibr_ros.errors import UserError
 from ibr_ros.models import mono_spec, sky_spec
 
-__all__ = ['SFM_MODES', 'SFM_SCALES', 'refiner_config', 'sfm_settings']
+__all__ = ['RENDER_PARAMETERS', 'SFM_MODES', 'SFM_SCALES', 'refiner_config', 'render_config', 'sfm_settings']
 
 #: ``sfm_mode`` of the depth_refiner: register pose-less keyframes 'auto'(matically), 'always' or not.
 SFM_MODES = ('auto', 'always', 'off')
@@ -51,3 +52,47 @@ def refiner_config(
         sky_model=sky_spec(sky_model, sky_preset) if sky == 'onnx' else None,
         mvs=mvs,
     )
+
+
+#: view_renderer parameters that configure the renderer: name -> (default, description, limits). The
+#: defaults are :class:`RenderConfig`'s; 0 switches an addition off. The paper's renderer: blend
+#: paper, depth_split 0, coverage_px 0, depth_tolerance 0, resolution_weight_deg 0.
+RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
+    'renderer': ('ibr', "'ibr' (superpixel warp), 'splat' or 'ulr' (baselines)", None),
+    'blend': ('ulr', "'ulr' (ULR weights), 'paper' (smallest angle penalty wins) or 'soft' (Gaussian)", None),
+    'n_views': (4, 'source views per query', (1, 4)),
+    'n_segments': (1500, 'SLIC superpixels per source view', (16, 100000)),
+    'depth_split': (0.02, 'split superpixels at depth steps above this (log depth), 0 = off', (0.0, 10.0)),
+    'coverage_px': (1.0, 'per-pixel reprojection check of warped superpixels (px), 0 = off', (0.0, 1e3)),
+    'depth_tolerance': (0.5, 'blend only views within (1 + this) x the nearest depth, 0 = off', (0.0, 1e3)),
+    'resolution_weight_deg': (20.0, 'penalty (deg) per unit of the ULR resolution term', (0.0, 1e3)),
+    'max_axis_angle_deg': (90.0, 'ignore views facing farther away (deg)', (1.0, 180.0)),
+    'far_factor': (3.0, 'distance limit = this x median scene depth', (0.01, 1e6)),
+    'max_cached_views': (64, 'per-view caches kept (LRU)', (1, 100000)),
+}
+
+
+def render_config(values: dict[str, object]) -> RenderConfig:
+    """The view_renderer's :data:`RENDER_PARAMETERS` (missing ones take their defaults) as a
+    :class:`RenderConfig`; a bad value is a :class:`UserError` naming the parameter."""
+    v = {name: values.get(name, spec[0]) for name, spec in RENDER_PARAMETERS.items()}
+    try:
+        fields = {
+            'renderer': str(v['renderer']),
+            'blend': str(v['blend']),
+            'n_views': int(v['n_views']),  # type: ignore[call-overload]
+            'n_segments': int(v['n_segments']),  # type: ignore[call-overload]
+            'depth_split': float(v['depth_split']) or None,  # type: ignore[arg-type]
+            'coverage_px': float(v['coverage_px']) or None,  # type: ignore[arg-type]
+            'depth_tolerance': float(v['depth_tolerance']) or None,  # type: ignore[arg-type]
+            'resolution_weight_deg': float(v['resolution_weight_deg']),  # type: ignore[arg-type]
+            'max_axis_angle_deg': float(v['max_axis_angle_deg']),  # type: ignore[arg-type]
+            'far_factor': float(v['far_factor']),  # type: ignore[arg-type]
+            'max_cached_views': int(v['max_cached_views']),  # type: ignore[call-overload]
+        }
+    except (TypeError, ValueError) as exc:
+        raise UserError(f'bad view_renderer parameter value: {exc}') from exc
+    try:
+        return RenderConfig(**fields)  # type: ignore[arg-type]
+    except ValueError as exc:
+        raise UserError(f'bad view_renderer parameter: {exc}') from exc

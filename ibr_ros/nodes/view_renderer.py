@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -36,7 +37,8 @@ from sensor_msgs.msg import CameraInfo, Image
 import msg_utils
 from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.geometry import look_at
-from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
+from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.node_config import RENDER_PARAMETERS, render_config
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,
@@ -68,18 +70,11 @@ class ViewRenderer(Node):
         )
         self.frame_id = str(p('frame_id', 'novel_view_optical', 'frame_id of the replies'))
         self.max_keyframes = int(p('max_keyframes', 1000, 'keyframes kept in the model', limits=(1, 100000)))
-        self.config = RenderConfig(
-            renderer=str(p('renderer', 'ibr', "'ibr' (paper), 'splat' or 'ulr' (baselines)")),
-            blend=str(p('blend', 'paper', "'paper' (best angle wins) or 'soft' (Gaussian blend)")),
-            n_views=int(p('n_views', 4, 'source views per query', limits=(1, 4))),
-            n_segments=int(p('n_segments', 1500, 'SLIC superpixels per source view', limits=(16, 100000))),
-            max_axis_angle_deg=float(
-                p('max_axis_angle_deg', 90.0, 'ignore views facing farther away (deg)', limits=(1.0, 180.0))
-            ),
-            far_factor=float(
-                p('far_factor', 3.0, 'distance limit = this x median scene depth', limits=(0.01, 1e6))
-            ),
-            max_cached_views=int(p('max_cached_views', 64, 'per-view caches kept (LRU)', limits=(1, 100000))),
+        self.config = render_config(
+            {
+                name: p(name, default, text, limits=limits)
+                for name, (default, text, limits) in RENDER_PARAMETERS.items()
+            }
         )
         self.renderer = NovelViewRenderer([], self.config)
         self.bad = BadInput(self)
@@ -129,7 +124,7 @@ class ViewRenderer(Node):
         rgb = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
         t_wc = look_at([0.0, -10.0, 5.0], [0.0, 0.0, 0.0])
         view = SourceView(rgb, np.full((48, 64), 11.0, np.float32), cam, t_wc)
-        NovelViewRenderer([view], RenderConfig(n_segments=30)).render(t_wc, cam)
+        NovelViewRenderer([view], replace(self.config, n_segments=30)).render(t_wc, cam)
         self.get_logger().info(f'warm-up render in {time.perf_counter() - t0:.2f} s')
 
     # -- model ----------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from ibr_ros.core.schedule import ScheduleConfig, parse_depth_range
 from ibr_ros.core.sfm_session import ScaleHint
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.node_config import refiner_config, sfm_settings
+from ibr_ros.node_config import refiner_config, render_config, sfm_settings
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 T = TypeVar('T')
@@ -186,15 +186,7 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         refiner = _named(
             'depth_refiner', refiner_config, *(str(dr[k]) for k in REFINER_MODEL_PARAMETERS), mvs
         )
-        render = RenderConfig(
-            renderer=str(vr['renderer']),  # type: ignore[arg-type]
-            blend=str(vr['blend']),  # type: ignore[arg-type]
-            n_views=int(vr['n_views']),
-            n_segments=int(vr['n_segments']),
-            max_axis_angle_deg=float(vr['max_axis_angle_deg']),
-            far_factor=float(vr['far_factor']),
-            max_cached_views=int(vr['max_cached_views']),
-        )
+        render = render_config(vr)
     except (ValueError, TypeError, KeyError) as exc:
         raise UserError(f'bad node parameters: {exc}') from exc
     size = (
