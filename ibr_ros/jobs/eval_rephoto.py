@@ -18,8 +18,10 @@ reconstruction serves every holdout), then :class:`~ibr_ros.core.refine.DepthRef
 * ``fused``: the final refined depth (ours);
 * ``gt``: ground-truth depth (``+inf`` sky): the upper bound.
 
-Methods (``renderer@depth``): ``ours`` (the paper's renderer, :class:`RenderConfig` ``blend='paper'``)
-on every source; ``soft`` (ours with ``blend='soft'``), ``ulr`` and ``splat`` on ``fused`` and ``gt``.
+Methods (``renderer@depth``): ``ours`` (this project's renderer: the options' ``render`` settings,
+by default :class:`RenderConfig`'s) on every source; ``paper`` (the same with
+:meth:`RenderConfig.as_paper`: the paper's renderer exactly), ``ulr`` and ``splat`` on ``fused`` and
+``gt``.
 
 Scores (0..255 colour units, :mod:`ibr_ros.core.rephoto`): the holes of every render (pixels no
 source covers) are filled by image inpainting (``cv2.inpaint`` Telea, radius 3) before scoring, as
@@ -90,7 +92,7 @@ ERROR_MAP_MAX = 64.0  # colour units at the top of the error-map colour scale
 class Method:
     """A renderer on a depth source; ``key`` is ``name@depth``."""
 
-    name: Literal['ours', 'soft', 'ulr', 'splat']
+    name: Literal['ours', 'paper', 'ulr', 'splat']
     depth: str
 
     @property
@@ -98,13 +100,14 @@ class Method:
         return f'{self.name}@{self.depth}'
 
     def config(self, base: RenderConfig) -> RenderConfig:
-        renderer = 'ibr' if self.name in ('ours', 'soft') else self.name
-        return replace(base, renderer=renderer, blend='soft' if self.name == 'soft' else 'paper')
+        if self.name == 'paper':
+            return replace(base, renderer='ibr').as_paper()
+        return replace(base, renderer='ibr' if self.name == 'ours' else self.name)
 
 
 METHODS: tuple[Method, ...] = (
     *(Method('ours', d) for d in DEPTH_SOURCES),
-    *(Method(r, d) for d in ('fused', 'gt') for r in ('soft', 'ulr', 'splat')),
+    *(Method(r, d) for d in ('fused', 'gt') for r in ('paper', 'ulr', 'splat')),
 )
 _BY_KEY = {m.key: m for m in METHODS}
 
@@ -115,8 +118,9 @@ BARS = (
     ('fused beats MVS + FMM depth in AUC', 'auc', 'ours@fused', 'ours@mvs_fmm'),
     ('fused beats mono in AUC', 'auc', 'ours@fused', 'ours@mono'),
     ('fused beats MVS + image inpainting in AUC', 'auc', 'ours@fused', 'ours@mvs'),
-    ('soft blend beats ULR in the tail (fused depth)', 'tail', 'soft@fused', 'ulr@fused'),
     ('ours beats ULR in the tail (GT depth)', 'tail', 'ours@gt', 'ulr@gt'),
+    ('ours beats splat in the tail (GT depth)', 'tail', 'ours@gt', 'splat@gt'),
+    ("ours beats the paper's renderer in the tail (fused depth)", 'tail', 'ours@fused', 'paper@fused'),
 )
 
 
@@ -467,10 +471,10 @@ _STYLE = {
     'ours@mono': ('tab:green', '-'),
     'ours@fused': ('tab:red', '-'),
     'ours@gt': ('black', '-'),
-    'soft@fused': ('tab:purple', '--'),
+    'paper@fused': ('tab:purple', '--'),
     'ulr@fused': ('tab:blue', '--'),
     'splat@fused': ('tab:brown', '--'),
-    'soft@gt': ('tab:purple', ':'),
+    'paper@gt': ('tab:purple', ':'),
     'ulr@gt': ('tab:blue', ':'),
     'splat@gt': ('tab:brown', ':'),
 }
@@ -548,11 +552,11 @@ def _markdown(s: dict) -> str:
         lines.append('')
 
     table3(
-        'Table 3 analogue: depth sources (our renderer, paper blend)',
+        'Table 3 analogue: depth sources (our renderer)',
         [f'ours@{d}' for d in DEPTH_SOURCES],
         [DEPTH_LABELS[d] for d in DEPTH_SOURCES],
     )
-    rkeys = [f'{r}@{d}' for d in ('fused', 'gt') for r in ('ours', 'soft', 'ulr', 'splat')]
+    rkeys = [f'{r}@{d}' for d in ('fused', 'gt') for r in ('ours', 'paper', 'ulr', 'splat')]
     table3('Renderers on fused and on GT depth', rkeys, rkeys)
     lines += [
         '## Main window 7x7 +-2 (mean over holdouts)',
