@@ -64,7 +64,7 @@ RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
     'n_segments': (1500, 'SLIC superpixels per source view', (16, 100000)),
     'depth_split': (0.02, 'split superpixels at depth steps above this (log depth), 0 = off', (0.0, 10.0)),
     'coverage_px': (1.0, 'per-pixel reprojection check of warped superpixels (px), 0 = off', (0.0, 1e3)),
-    'depth_tolerance': (0.5, 'blend only views within (1 + this) x the nearest depth, 0 = off', (0.0, 1e3)),
+    'depth_tolerance': (0.5, "views vote on each pixel's depth with this tolerance, 0 = off", (0.0, 1e3)),
     'resolution_weight_deg': (20.0, 'penalty (deg) per unit of the ULR resolution term', (0.0, 1e3)),
     'max_axis_angle_deg': (90.0, 'ignore views facing farther away (deg)', (1.0, 180.0)),
     'far_factor': (3.0, 'distance limit = this x median scene depth', (0.01, 1e6)),
