@@ -27,7 +27,9 @@ GRAPH_NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer
 
 
 def config_dir() -> Path:
-    """Folder of the default parameter files: the installed share/ibr_ros/config, else the checkout's."""
+    """Folder of the default parameter files: the installed share/ibr_ros/config (found through the
+    ament index, else under this interpreter's prefix: a pip-installed venv used without
+    AMENT_PREFIX_PATH), else the checkout's."""
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
@@ -39,7 +41,11 @@ def config_dir() -> Path:
             pass
     except ImportError:
         pass
-    return Path(__file__).resolve().parents[1] / 'config'
+    checkout = Path(__file__).resolve().parents[1] / 'config'
+    in_prefix = Path(sys.prefix) / 'share' / 'ibr_ros' / 'config'
+    if not checkout.is_dir() and in_prefix.is_dir():
+        return in_prefix
+    return checkout
 
 
 def _ros_value(value: object) -> str:
