@@ -63,3 +63,17 @@ def test_ros2_run_ibr_version(tmp_path):
     out = subprocess.run([exe, '--version'], capture_output=True, text=True, cwd=tmp_path, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith('ibr_ros ')
+
+
+def test_installed_package_finds_its_params_files_without_the_ament_index(tmp_path):
+    """A pip-installed venv used without AMENT_PREFIX_PATH: the config comes from <prefix>/share."""
+    python = os.path.join(_prefix(), 'bin', 'python')  # the venv's interpreter, as the launchers use
+    env = {k: v for k, v in os.environ.items() if k != 'AMENT_PREFIX_PATH'}
+    code = 'import sys; from ibr_ros.graph import config_dir; print(config_dir(), sys.prefix)'
+    out = subprocess.run(
+        [python, '-c', code], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    config, prefix = out.stdout.split()
+    assert config == os.path.join(prefix, 'share', 'ibr_ros', 'config')
+    assert os.path.isfile(os.path.join(config, 'view_renderer.yaml'))
