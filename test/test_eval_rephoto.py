@@ -8,13 +8,13 @@ default renderer, ``paper`` the paper's renderer exactly):
 =======  ============  ============  ============  ============  ============  ============
 scene    ours@fused    paper@fused   ulr@fused     splat@fused   ours@gt       ulr@gt
 =======  ============  ============  ============  ============  ============  ============
-shipped  5.659 / 24.4  6.332 / 26.0  6.019 / 28.8  7.032 / 29.9  5.258 / 20.5  5.156 / 20.2
-seed1    5.607 / 24.9  6.027 / 25.2  5.732 / 25.8  7.526 / 61.2  5.072 / 19.3  5.106 / 19.5
-seed2    6.284 / 44.2  6.955 / 48.6  6.678 / 46.0  8.250 / 68.7  5.135 / 23.7  5.174 / 23.9
+shipped  5.650 / 24.4  6.332 / 26.0  6.019 / 28.8  7.032 / 29.9  5.258 / 20.5  5.156 / 20.2
+seed1    5.604 / 24.9  6.027 / 25.2  5.732 / 25.8  7.526 / 61.2  5.072 / 19.3  5.106 / 19.5
+seed2    6.307 / 44.8  6.955 / 48.6  6.678 / 46.0  8.250 / 68.7  5.136 / 23.7  5.174 / 23.9
 =======  ============  ============  ============  ============  ============  ============
 
-Depth sources with ours (AUC): mono 7.94 / 6.31 / 7.88, MVS + FMM 5.772 / 5.683 / 6.437, MVS with
-its render holes inpainted 9.78 / 8.58 / 12.53 (shipped / seed1 / seed2).
+Depth sources with ours (AUC): mono 7.94 / 6.31 / 7.88, MVS + FMM 5.757 / 5.683 / 6.428, MVS with
+its render holes inpainted 9.78 / 8.58 / 12.52 (shipped / seed1 / seed2).
 
 Holds on every scene: ours beats ULR, splat and the paper's renderer in the tail with fused depth;
 fused beats mono, MVS + FMM depth inpainting and MVS with its render holes inpainted (the paper's

@@ -334,13 +334,17 @@ def _blend_one_pixel(depths: list[float], tol: float | None) -> tuple[int, tuple
 
 
 def test_views_vote_on_the_surface_of_each_pixel() -> None:
-    """``depth_tolerance``: the depth most views agree on wins (ties: the nearest), only its views blend
-    (here with ULR weights 1 - p / p_max over them: the worst kept view gets 0)."""
+    """``depth_tolerance``: a depth that a strict majority of the covering views agree on wins and only
+    its views blend (here with ULR weights 1 - p / p_max over them: the worst kept view gets 0)."""
     assert _blend_one_pixel([10.0, 20.0, 20.0], 0.5) == (1, (20, 20, 20))  # view 0 too near: outvoted
     assert _blend_one_pixel([10.0, 20.0, 20.0], None)[1] == (13, 13, 13)  # 2/3 red + 1/3 green
     assert _blend_one_pixel([10.0, 12.0, 40.0], 0.5)[1] == (10, 10, 10)  # 0 and 1 agree; 1 gets 0 weight
     assert _blend_one_pixel([np.inf, np.inf, 10.0], 0.5) == (0, (10, 10, 10))  # sky, seen by two views
-    assert _blend_one_pixel([40.0, 10.0], 0.5) == (1, (20, 20, 20))  # one vote each: the nearer
+    assert _blend_one_pixel([10.0, 40.0, 10.0, 40.0], 0.5) == (
+        0,
+        (17, 17, 17),
+    )  # 2 vs 2: no majority, all blend
+    assert _blend_one_pixel([40.0, 10.0], 0.5)[1] == (10, 10, 10)  # 2 views never outvote each other
 
 
 def test_paper_config_switches_every_addition_off() -> None:
