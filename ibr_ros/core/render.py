@@ -151,10 +151,10 @@ PAPER_FIELDS: dict[str, object] = {
 class RenderConfig:
     """Renderer settings (angles in degrees, distances in metres; see the module docstring).
 
-    The defaults are this project's renderer: the paper's pipeline plus four additions that make it
-    beat ULR in the worst-1 % rephotography error (``depth_split``, ``coverage_px``,
-    ``depth_tolerance`` and ``blend='ulr'`` with the resolution term). :meth:`as_paper` / :meth:`paper`
-    switch them off: the paper exactly.
+    The defaults are this project's renderer: the paper's pipeline plus four additions that lower
+    the worst-1 % rephotography error (``depth_split``, ``coverage_px``, ``depth_tolerance`` and
+    ``blend='ulr'`` with the resolution term; measurements and exceptions in the module docstring).
+    :meth:`as_paper` / :meth:`paper` switch them off: the paper exactly.
 
     Attributes:
         renderer: ``'ibr'`` (the paper's superpixel warp), ``'splat'`` or ``'ulr'`` (baselines for
