@@ -430,6 +430,21 @@ def _pick(a, b, c, d, j):
 
 
 @njit(cache=True)
+def _lands_near(d, rx, ry, rz, rel, x, y, thr2):
+    """Whether the source point at depth ``d`` along ray ``(rx, ry, rz)`` (source pixel direction
+    rotated into the novel frame; ``rel`` as in :func:`_refine_preimage`) projects within
+    ``sqrt(thr2)`` px of novel pixel ``(x, y)``; True for unknown depth or sky (only the affine map
+    is known there)."""
+    d = np.float64(d)
+    if not (d > 0 and d < np.inf):
+        return True
+    zc = rz * d + rel[11]
+    ex = rel[16] * (rx * d + rel[9]) + (rel[18] - x) * zc
+    ey = rel[17] * (ry * d + rel[10]) + (rel[19] - y) * zc
+    return zc > 1e-6 and ex * ex + ey * ey <= thr2 * zc * zc
+
+
+@njit(cache=True)
 def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, depth, rel, thr2):
     """Rows ``r0..r1`` of :func:`_raster` for one view."""
     for oi in range(order.size):
@@ -469,41 +484,27 @@ def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, de
             x1 = int(xe)
             u = b00 * x0 + cu
             v = b10 * x0 + cv
-            if thr2 < 0:
-                for x in range(x0, x1 + 1):
-                    if ids[y, x] < 0:
-                        ui = min(max(int(u + 0.5), bx0), bx1)  # u >= bx0 - 0.5 > -1: int() is floor
-                        vi = min(max(int(v + 0.5), by0), by1)
-                        if labels[vi, ui] == kk:
-                            ids[y, x] = k
-                    u += b00
-                    v += b10
-                continue
-            # per-pixel check: the source ray at (u, v), rotated into the novel frame, is affine in x
-            dx0 = (u - rel[14]) / rel[12]
-            dy0 = (v - rel[15]) / rel[13]
-            ddx = b00 / rel[12]
-            ddy = b10 / rel[13]
-            rx = rel[0] * dx0 + rel[1] * dy0 + rel[2]
-            ry = rel[3] * dx0 + rel[4] * dy0 + rel[5]
-            rz = rel[6] * dx0 + rel[7] * dy0 + rel[8]
-            sx = rel[0] * ddx + rel[1] * ddy
-            sy = rel[3] * ddx + rel[4] * ddy
-            sz = rel[6] * ddx + rel[7] * ddy
+            check = thr2 >= 0
+            rx = ry = rz = sx = sy = sz = 0.0
+            if check:  # the source ray at (u, v), rotated into the novel frame, is affine in x
+                dx0 = (u - rel[14]) / rel[12]
+                dy0 = (v - rel[15]) / rel[13]
+                ddx = b00 / rel[12]
+                ddy = b10 / rel[13]
+                rx = rel[0] * dx0 + rel[1] * dy0 + rel[2]
+                ry = rel[3] * dx0 + rel[4] * dy0 + rel[5]
+                rz = rel[6] * dx0 + rel[7] * dy0 + rel[8]
+                sx = rel[0] * ddx + rel[1] * ddy
+                sy = rel[3] * ddx + rel[4] * ddy
+                sz = rel[6] * ddx + rel[7] * ddy
             for x in range(x0, x1 + 1):
                 if ids[y, x] < 0:
-                    ui = min(max(int(u + 0.5), bx0), bx1)
+                    ui = min(max(int(u + 0.5), bx0), bx1)  # u >= bx0 - 0.5 > -1: int() is floor
                     vi = min(max(int(v + 0.5), by0), by1)
-                    if labels[vi, ui] == kk:
-                        d = np.float64(depth[vi, ui])
-                        if not (d > 0 and d < np.inf):  # unknown or sky: the affine map is all we have
-                            ids[y, x] = k
-                        else:
-                            zc = rz * d + rel[11]
-                            ex = rel[16] * (rx * d + rel[9]) + (rel[18] - x) * zc
-                            ey = rel[17] * (ry * d + rel[10]) + (rel[19] - y) * zc
-                            if zc > 1e-6 and ex * ex + ey * ey <= thr2 * zc * zc:
-                                ids[y, x] = k
+                    if labels[vi, ui] == kk and (
+                        not check or _lands_near(depth[vi, ui], rx, ry, rz, rel, x, y, thr2)
+                    ):
+                        ids[y, x] = k
                 u += b00
                 v += b10
                 rx += sx
