@@ -1,23 +1,72 @@
 """Shared test set-up: DDS isolation and paths.
 
-Every test run gets its own ROS_DOMAIN_ID (from the pid) and localhost-only discovery, so that
-parallel runs on one machine never see each other's nodes.
+Every test run gets its own ROS_DOMAIN_ID and localhost-only discovery, so that parallel runs on
+one machine never see each other's nodes: the run holds a UDP port of its domain's range that DDS does
+not use, and a second run (whose pid may well be the same, in a fresh container) takes the next free
+domain. Nodes a test made with ``rclpy.create_node`` are destroyed after it, failed or not.
 """
 
 from __future__ import annotations
 
 import os
+import socket
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import rclpy
 
 REPO = Path(__file__).resolve().parents[1]
-DOMAIN_ID = int(os.environ.get('IBR_TEST_DOMAIN_ID', str(1 + os.getpid() % 100)))
+
+
+def _claim_domain(first: int) -> tuple[int, socket.socket]:
+    """The first domain from ``first`` (cycling through 1..100) whose lock port this process can bind.
+
+    Fast DDS gives domain d the ports 7400 + 250 d + 0..249 and uses the last ones only for a 119th
+    participant; port 7400 + 250 d + 249 on 127.0.0.1 is this run's lock on d.
+    """
+    for k in range(100):
+        domain = 1 + (first - 1 + k) % 100
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.bind(('127.0.0.1', 7400 + 250 * domain + 249))
+        except OSError:
+            sock.close()
+            continue
+        return domain, sock
+    raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 for this test run (all lock ports are bound)')
+
+
+if 'IBR_TEST_DOMAIN_ID' in os.environ:
+    DOMAIN_ID = int(os.environ['IBR_TEST_DOMAIN_ID'])
+else:
+    DOMAIN_ID, _DOMAIN_LOCK = _claim_domain(1 + os.getpid() % 100)
 
 os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+
+
+@pytest.fixture(autouse=True)
+def _destroy_test_nodes(monkeypatch) -> Iterator[None]:
+    """Destroy the nodes the test made with ``rclpy.create_node`` once it is over.
+
+    A failed test's frames stay referenced (``sys.last_traceback``); a node left alive would go on
+    serving its transient-local history to the next tests' subscriptions.
+    """
+    made = []
+    create = rclpy.create_node
+
+    def tracked(*args, **kwargs):
+        node = create(*args, **kwargs)
+        made.append(node)
+        return node
+
+    monkeypatch.setattr(rclpy, 'create_node', tracked)
+    yield
+    for node in made:
+        node.destroy_node()  # a no-op for a node the test destroyed itself
 
 
 @pytest.fixture(scope='session')

@@ -325,9 +325,11 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
 
 def test_refiner_flush_refine_again_debug_and_poseless_frames(repo, bag, ros_env):
     """Few keyframes: refined with one neighbour after ``flush_after_s``, again when a third arrives."""
+    # sfm_pose_wait_s 60: the poseless frames only warn. The test sees its pose publisher matched, but
+    # the refiner's reader may match it a DDS heartbeat (3 s) later; SfM mode must not start meanwhile.
     proc = _node(
         repo, 'depth_refiner', ros_env, 'max_neighbours:=2', 'flush_after_s:=1.0', 'refine_again:=true',
-        'publish_debug:=true',
+        'publish_debug:=true', 'sfm_pose_wait_s:=60.0',
     )  # fmt: skip
     rclpy.init()
     try:
