@@ -81,7 +81,8 @@ def main() -> int:
     renderers = {
         'ibr (default)': NovelViewRenderer(views, RenderConfig()),
         'ibr (paper)': NovelViewRenderer(views, RenderConfig.paper()),
-        'ibr (default, lookup)': NovelViewRenderer(views, RenderConfig(depth_lookup_steps=2)),
+        'ibr (no depth lookup)': NovelViewRenderer(views, RenderConfig(depth_lookup_steps=0)),
+        'ibr (lookup everywhere)': NovelViewRenderer(views, RenderConfig(depth_lookup_min_fit_px=0.0)),
         'ibr (default, all views)': NovelViewRenderer(views, RenderConfig(ulr_blend_min_weight=0.0)),
         'splat (nearest view)': NovelViewRenderer(views, RenderConfig(renderer='splat')),
         'ulr': NovelViewRenderer(views, RenderConfig(renderer='ulr')),

@@ -56,7 +56,7 @@ def refiner_config(
 
 #: view_renderer parameters that configure the renderer: name -> (default, description, limits). The
 #: defaults are :class:`RenderConfig`'s; 0 switches an addition off. The paper's renderer: blend
-#: paper, depth_split 0, coverage_px 0, depth_tolerance 0, resolution_weight_deg 0.
+#: paper, depth_split 0, coverage_px 0, depth_tolerance 0, resolution_weight_deg 0, depth_lookup_steps 0.
 RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
     'renderer': ('ibr', "'ibr' (superpixel warp), 'splat' or 'ulr' (baselines)", None),
     'blend': ('ulr', "'ulr' (ULR weights), 'paper' (smallest angle penalty wins) or 'soft' (Gaussian)", None),
@@ -65,7 +65,14 @@ RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
     'depth_split': (0.02, 'split superpixels at depth steps above this (log depth), 0 = off', (0.0, 10.0)),
     'coverage_px': (1.0, 'per-pixel reprojection check of warped superpixels (px), 0 = off', (0.0, 1e3)),
     'depth_tolerance': (0.5, "views vote on each pixel's depth with this tolerance, 0 = off", (0.0, 1e3)),
-    'resolution_weight_deg': (20.0, 'penalty (deg) per unit of the ULR resolution term', (0.0, 1e3)),
+    'resolution_weight_deg': (40.0, 'penalty (deg) per unit of the ULR resolution term', (0.0, 1e3)),
+    'depth_lookup_steps': (2, 'per-pixel depth corrections of the colour lookup, 0 = off', (0, 10)),
+    'depth_lookup_max_px': (1.0, 'largest depth correction of the colour lookup (px)', (0.01, 1e3)),
+    'depth_lookup_min_fit_px': (
+        0.08,
+        'correct only superpixels whose affine warp misses by more (RMS px)',
+        (0.0, 1e3),
+    ),
     'max_axis_angle_deg': (90.0, 'ignore views facing farther away (deg)', (1.0, 180.0)),
     'far_factor': (3.0, 'distance limit = this x median scene depth', (0.01, 1e6)),
     'max_cached_views': (64, 'per-view caches kept (LRU)', (1, 100000)),
@@ -86,6 +93,9 @@ def render_config(values: dict[str, object]) -> RenderConfig:
             'coverage_px': float(v['coverage_px']) or None,  # type: ignore[arg-type]
             'depth_tolerance': float(v['depth_tolerance']) or None,  # type: ignore[arg-type]
             'resolution_weight_deg': float(v['resolution_weight_deg']),  # type: ignore[arg-type]
+            'depth_lookup_steps': int(v['depth_lookup_steps']),  # type: ignore[call-overload]
+            'depth_lookup_max_px': float(v['depth_lookup_max_px']),  # type: ignore[arg-type]
+            'depth_lookup_min_fit_px': float(v['depth_lookup_min_fit_px']),  # type: ignore[arg-type]
             'max_axis_angle_deg': float(v['max_axis_angle_deg']),  # type: ignore[arg-type]
             'far_factor': float(v['far_factor']),  # type: ignore[arg-type]
             'max_cached_views': int(v['max_cached_views']),  # type: ignore[call-overload]

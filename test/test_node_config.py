@@ -20,7 +20,7 @@ def test_render_parameter_defaults_are_the_core_defaults_and_the_params_file(rep
 
 def test_zero_switches_the_additions_off_giving_the_papers_renderer() -> None:
     off = {'blend': 'paper', 'depth_split': 0.0, 'coverage_px': 0.0, 'depth_tolerance': 0.0}
-    paper = render_config({**off, 'resolution_weight_deg': 0.0})
+    paper = render_config({**off, 'resolution_weight_deg': 0.0, 'depth_lookup_steps': 0})
     assert paper == RenderConfig.paper(min_depth_samples=RenderConfig().min_depth_samples)
     assert render_config({'depth_split': 0.05, 'n_views': 2}).depth_split == 0.05
 
@@ -32,6 +32,7 @@ def test_zero_switches_the_additions_off_giving_the_papers_renderer() -> None:
         ({'n_views': 5}, 'n_views must be 1..4, got 5'),
         ({'coverage_px': -1.0}, r'coverage_px must be None \(off\) or > 0, got -1.0'),
         ({'depth_tolerance': 'wide'}, 'bad view_renderer parameter value'),
+        ({'depth_lookup_max_px': 0.0}, 'depth_lookup_max_px > 0'),
     ],
 )
 def test_bad_render_parameters_are_user_errors_naming_them(values, match) -> None:

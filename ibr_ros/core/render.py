@@ -2,7 +2,7 @@
 
 ``NovelViewRenderer(views, config).render(t_wc, camera)`` with ``config.renderer``:
 
-``'ibr'``: the paper's pipeline; the defaults add four steps (marked *added*) that
+``'ibr'``: the paper's pipeline; the defaults add five steps (marked *added*) that
 :meth:`RenderConfig.as_paper` switches off.
 
 1. View selection: among the usable source views whose optical axis is within
@@ -31,7 +31,7 @@
 4. Blending of the (up to 4) warped images, per pixel, from the angle penalty of Chaurasia et al.
    2011: the angle at the superpixel's 3D anchor (centroid at median depth) between the ray from
    the source centre and the ray from the novel centre, evaluated once per warped superpixel;
-   *added* (``resolution_weight_deg``): plus 20 degrees per unit of ULR's resolution term, so a
+   *added* (``resolution_weight_deg``): plus 40 degrees per unit of ULR's resolution term, so a
    view much farther from the surface than the novel camera ranks lower. ``blend='paper'``: the
    colour of the view with the smallest penalty (ties go to the nearer view). ``blend='ulr'``
    (*added*, default): weights ``1 - p / p_max`` over the views covering the pixel (the worst of
@@ -48,24 +48,29 @@
    raised the worst-1 % error of the ``ibr process`` path views on the shipped flight from 18.4 to
    21.9 (bad distant depth), and letting the nearest surface win 2-2 ties cost 0.9 on the demo's.
    Sky superpixels are warped by rotation only and get penalty 0 (so the
-   nearest view supplies the sky). Optional ``depth_lookup_steps`` (default 0): the affine
-   pre-image of each pixel is corrected by that many Newton steps that reproject the source pixel
-   at its own depth into the novel view (at most ``depth_lookup_max_px`` px), so the colour comes
-   from where the depth map says instead of from the superpixel's affine approximation; it about
-   doubles the render time for a worst-1 % gain of about 1 % (ground-truth depth, shipped flight:
-   20.51 -> 20.25), hence off by default.
+   nearest view supplies the sky). *Added* (``depth_lookup_steps``, 2): in superpixels whose
+   affine warp misses its own reprojection samples by more than ``depth_lookup_min_fit_px``
+   (0.08 px RMS, :attr:`~ibr_ros.core.warp.WarpResult.fit_px`), the affine pre-image of each
+   pixel is corrected by Newton steps that reproject the source pixel at its own depth into the
+   novel view (by at most ``depth_lookup_max_px``, 1 px), so the colour comes from where the depth
+   map says rather than from the affine approximation: thin trunks and fine ground texture stay
+   sharp. The fit gate leaves out the superpixels (most of them) that the affine warp already
+   fits: at 960x540 the lookup costs 3 ms (43 against 40 ms per view with 4 sources), 28 ms when
+   done everywhere, for about the same quality.
 
 Why the additions (rephotography, 7x7 +-2 shiftable L1, worst 1 %, mean over holdouts; see
 ``ibr eval rephoto`` and ``test/test_eval_rephoto.py``): on the shipped synthetic flight and seeds 1
 and 2, with refined (fused) depth the paper's renderer has 26.0 / 25.2 / 48.6, ULR 28.8 / 25.8 /
-46.0, the defaults 24.4 / 24.9 / 44.8; with ground-truth depth the paper's renderer 24.9 / 22.4 /
-28.3, ULR 20.2 / 19.5 / 23.9, the defaults 20.5 / 19.3 / 23.7. On seeds 3 and 4, never used while
-choosing the settings: fused 26.1 / 26.1 (ULR 26.3 / 30.4, paper 27.8 / 26.9), ground truth
-21.5 / 19.5 (ULR 21.7 / 19.6, paper 24.6 / 22.2). On the 16 path views of ``ibr process`` on the
-shipped flight (refined depth, against the exact frames, holes black): 18.4 (paper 18.7, ULR 26.3).
-Not better everywhere: with the demo's parameters (25 keyframes refined with 2 MVS neighbours
-each, noisier depth) its 8 path views have 24.9 against the paper's 23.7 (ULR 37.1); the mean error
-is lower (5.30 against 5.58), but with poor depth the paper's single best view fails more gently.
+46.0, the defaults 24.4 / 24.6 / 44.8; with ground-truth depth the paper's renderer 24.9 / 22.4 /
+28.3, ULR 20.24 / 19.5 / 23.9, the defaults 20.16 / 19.0 / 23.5 (20.50 / 19.3 / 23.7 without the
+depth lookup and with ``resolution_weight_deg`` 20). On seeds 3 and 4, never used while choosing
+the settings: fused 26.0 / 26.2 (ULR 26.3 / 30.4, paper 27.8 / 26.9), ground truth 21.2 / 19.2
+(ULR 21.7 / 19.6, paper 24.6 / 22.2). On the 16 path views of ``ibr process`` on the shipped flight
+(refined depth, against the exact frames, holes black): 18.6 (paper 18.7, ULR 26.3; 18.4 with
+``resolution_weight_deg`` 20). Not better everywhere: with the demo's parameters (25 keyframes
+refined with 2 MVS neighbours each, noisier depth) its 8 path views have 25.0 against the paper's
+23.7; the mean error is lower (5.31 against 5.58), but with poor depth the paper's single best
+view fails more gently.
 
 The kernels run in parallel (numba threads): the warp over superpixels (one region per view), the
 rasterisation (all views at once) and the blend over bands of destination rows.
@@ -143,6 +148,7 @@ PAPER_FIELDS: dict[str, object] = {
     'coverage_px': None,
     'depth_tolerance': None,
     'resolution_weight_deg': 0.0,
+    'depth_lookup_steps': 0,
     'min_depth_samples': 10,
 }
 
@@ -151,9 +157,10 @@ PAPER_FIELDS: dict[str, object] = {
 class RenderConfig:
     """Renderer settings (angles in degrees, distances in metres; see the module docstring).
 
-    The defaults are this project's renderer: the paper's pipeline plus four additions that lower
-    the worst-1 % rephotography error (``depth_split``, ``coverage_px``, ``depth_tolerance`` and
-    ``blend='ulr'`` with the resolution term; measurements and exceptions in the module docstring).
+    The defaults are this project's renderer: the paper's pipeline plus five additions that lower
+    the worst-1 % rephotography error (``depth_split``, ``coverage_px``, ``depth_tolerance``,
+    ``blend='ulr'`` with the resolution term and ``depth_lookup_steps``; measurements and
+    exceptions in the module docstring).
     :meth:`as_paper` / :meth:`paper` switch them off: the paper exactly.
 
     Attributes:
@@ -184,8 +191,10 @@ class RenderConfig:
         ulr_blend_min_weight: ``blend='ulr'`` leaves out views whose weight is below this fraction
             of the best view's (0: all; 0.3 saves a third of the colour lookups, about 4 ms at
             960x540, for a worst-1 % error higher by 0.2-0.7 %).
-        depth_lookup_steps, depth_lookup_max_px: optional per-pixel correction of the colour lookup
-            with the source depth (default off: it doubles the render time; see the module docstring).
+        depth_lookup_steps, depth_lookup_max_px, depth_lookup_min_fit_px: per-pixel correction of
+            the colour lookup with the source depth: Newton steps (0: off), at most this many px,
+            only in superpixels whose affine warp misses its samples by more than this (RMS px;
+            0: all).
         max_cached_views: LRU size of the per-view cache.
         min_depth_samples, min_depth_fraction: ``has_depth`` rule of ``superpixel_stats``.
         splat_views: views splatted by ``renderer='splat'``.
@@ -194,7 +203,7 @@ class RenderConfig:
 
     renderer: Literal['ibr', 'splat', 'ulr'] = 'ibr'
     blend: Literal['paper', 'soft', 'ulr'] = 'ulr'
-    resolution_weight_deg: float = 20.0
+    resolution_weight_deg: float = 40.0
     depth_split: float | None = 0.02
     depth_split_levels: int = 2
     depth_split_min_px: int = 2
@@ -213,8 +222,9 @@ class RenderConfig:
     max_magnification: float = 8.0
     soft_sigma_deg: float = 2.0
     ulr_blend_min_weight: float = 0.3
-    depth_lookup_steps: int = 0
-    depth_lookup_max_px: float = 3.0
+    depth_lookup_steps: int = 2
+    depth_lookup_max_px: float = 1.0
+    depth_lookup_min_fit_px: float = 0.08
     max_cached_views: int = 64
     min_depth_samples: int = 2
     min_depth_fraction: float = 0.05
@@ -237,10 +247,14 @@ class RenderConfig:
             raise ValueError(f'ulr_blend_min_weight must be in [0, 1), got {self.ulr_blend_min_weight}')
         if not 0 < self.max_axis_angle_deg <= 180 or not self.max_magnification >= 1:
             raise ValueError('need 0 < max_axis_angle_deg <= 180 and max_magnification >= 1')
-        if self.depth_lookup_steps < 0 or not self.depth_lookup_max_px > 0:
+        if (
+            self.depth_lookup_steps < 0
+            or not self.depth_lookup_max_px > 0
+            or not self.depth_lookup_min_fit_px >= 0
+        ):
             raise ValueError(
-                f'need depth_lookup_steps >= 0 and depth_lookup_max_px > 0, got {self.depth_lookup_steps}, '
-                f'{self.depth_lookup_max_px}'
+                'need depth_lookup_steps >= 0, depth_lookup_max_px > 0 and depth_lookup_min_fit_px >= 0, got '
+                f'{self.depth_lookup_steps}, {self.depth_lookup_max_px}, {self.depth_lookup_min_fit_px}'
             )
         for name in ('depth_tolerance', 'coverage_px', 'depth_split'):
             value = getattr(self, name)
@@ -580,32 +594,31 @@ def _put_rgb(out, y, x, r, g, b):
     out[y, x, 2] = np.uint8(min(b + np.float32(0.5), np.float32(255.0)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _refine_preimage(depth, rel, x, y, u, v, a00, a01, a10, a11, iters, max_shift):
     """Pre-image ``(u, v)`` of novel pixel ``(x, y)`` corrected with the source depth (Newton steps).
 
     The superpixel's affine map gives ``(u, v)``; each step projects source pixel ``(u, v)`` at its
     own depth (nearest pixel) into the novel view and moves ``(u, v)`` by the affine map's linear part
     ``a`` applied to the residual, by at most ``max_shift`` px in total. ``rel``: ``R`` (9), ``t``
-    (3), source ``fx, fy, cx, cy``, novel ``fx, fy, cx, cy``. Unknown or sky depth stops the steps.
+    (3), source ``fx, fy, cx, cy``, novel ``fx, fy, cx, cy``, then ``H = K_n R K_s^-1`` (9) and
+    ``K_n t`` (3), so that a source pixel at depth ``d`` lands at ``H (u, v, 1) d + K_n t``
+    (homogeneous). Unknown or sky depth stops the steps.
     """
     h, w = depth.shape
     u0, v0 = u, v
     for _ in range(iters):
         ui = min(max(int(u + 0.5), 0), w - 1)
         vi = min(max(int(v + 0.5), 0), h - 1)
-        d = depth[vi, ui]
+        d = np.float64(depth[vi, ui])
         if not (d > 0 and d < np.inf):
             break
-        dx = (u - rel[14]) / rel[12]
-        dy = (v - rel[15]) / rel[13]
-        xc = (rel[0] * dx + rel[1] * dy + rel[2]) * d + rel[9]
-        yc = (rel[3] * dx + rel[4] * dy + rel[5]) * d + rel[10]
-        zc = (rel[6] * dx + rel[7] * dy + rel[8]) * d + rel[11]
+        zc = (rel[26] * u + rel[27] * v + rel[28]) * d + rel[31]
         if not zc > 1e-6:
             break
-        rx = x - (rel[16] * xc / zc + rel[18])
-        ry = y - (rel[17] * yc / zc + rel[19])
+        iz = 1.0 / zc
+        rx = x - ((rel[20] * u + rel[21] * v + rel[22]) * d + rel[29]) * iz
+        ry = y - ((rel[23] * u + rel[24] * v + rel[25]) * d + rel[30]) * iz
         u = min(max(u + a00 * rx + a01 * ry, u0 - max_shift), u0 + max_shift)
         v = min(max(v + a10 * rx + a11 * ry, v0 - max_shift), v0 + max_shift)
     return u, v
@@ -642,6 +655,8 @@ def _blend(
     rel,
     iters,
     max_shift,
+    fit,
+    min_fit,
     out_rgb,
     out_valid,
     out_src,
@@ -658,7 +673,8 @@ def _blend(
     ``1 - p / p_max`` (``p_max`` the largest penalty among them; the best view always takes part,
     views below ``min_rel`` times its weight are left out).
     ``tol >= 0``: when a strict majority of the views agree on a depth (within a factor ``1 + tol``)
-    only they take part.
+    only they take part. ``iters > 0``: the colour lookups of superpixels with ``fit[j, k] >
+    min_fit`` are corrected by :func:`_refine_preimage` (depths ``dep<j>``, ``rel[j]``, ``max_shift``).
     """
     h, w = out_valid.shape
     for y in prange(h):
@@ -737,7 +753,7 @@ def _blend(
                 k = ids[j, y, x]
                 u = inv[j, k, 0, 0] * x + inv[j, k, 0, 1] * y + inv[j, k, 0, 2]
                 v = inv[j, k, 1, 0] * x + inv[j, k, 1, 1] * y + inv[j, k, 1, 2]
-                if iters > 0:
+                if iters > 0 and fit[j, k] > min_fit:
                     u, v = _refine_preimage(
                         _pick(dep0, dep1, dep2, dep3, j), rel[j], x, y, u, v,
                         inv[j, k, 0, 0], inv[j, k, 0, 1], inv[j, k, 1, 0], inv[j, k, 1, 1], iters, max_shift,
@@ -943,6 +959,19 @@ def _relative(t_wn: NDArray[np.float64], t_ws: NDArray[np.float64]) -> tuple[NDA
     r = r_wn.T @ t_ws[:3, :3]
     t = r_wn.T @ (t_ws[:3, 3] - t_wn[:3, 3])
     return np.ascontiguousarray(r), np.ascontiguousarray(t)
+
+
+def _rel_params(
+    t_wn: NDArray[np.float64], novel: PinholeCamera, t_ws: NDArray[np.float64], source: PinholeCamera
+) -> NDArray[np.float64]:
+    """The ``rel`` row of :func:`_refine_preimage` / :func:`_lands_near` for one source view."""
+    r, t = _relative(t_wn, t_ws)
+    fx, fy, cx, cy = _intrinsics(novel)
+    k_n = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    fx, fy, cx, cy = _intrinsics(source)
+    k_s_inv = np.array([[1 / fx, 0.0, -cx / fx], [0.0, 1 / fy, -cy / fy], [0.0, 0.0, 1.0]])
+    h = k_n @ r @ k_s_inv
+    return np.concatenate([r.ravel(), t, _intrinsics(source), _intrinsics(novel), h.ravel(), k_n @ t])
 
 
 class NovelViewRenderer:
@@ -1204,6 +1233,7 @@ class NovelViewRenderer:
         kmax = max(c.model.n_labels for _, c in chosen)
         pen = np.full((n, kmax), np.inf, np.float32)
         zk = np.full((n, kmax), np.inf, np.float32)
+        fit = np.full((n, kmax), np.inf, np.float32)
         inv = np.zeros((n, kmax, 2, 3))
         box = np.zeros((n, kmax, 4), np.int64)
         bbox = np.zeros((n, kmax, 4), np.int32)
@@ -1222,6 +1252,7 @@ class NovelViewRenderer:
             if cfg.resolution_weight_deg > 0:
                 pen[j, :kj] += cfg.resolution_weight_deg * res.resolution
             zk[j, :kj] = res.depth
+            fit[j, :kj] = res.fit_px
             bbox[j, :kj] = c.bbox
             span_off[j, : kj + 1] = c.span_off + sum(cc.spans.shape[0] for _, cc in chosen[:j])
         order_off = np.zeros(n + 1, np.int64)
@@ -1237,13 +1268,11 @@ class NovelViewRenderer:
         thr2 = -1.0 if cfg.coverage_px is None else float(cfg.coverage_px) ** 2
         if iters > 0 or thr2 >= 0:
             deps = [np.ascontiguousarray(self.views[i].depth, dtype=np.float32) for i, _ in chosen]
-            rel = np.zeros((n, 20))
-            kn = _intrinsics(camera)
-            for j, (i, _) in enumerate(chosen):
-                r, t = _relative(t_wn, self.views[i].t_wc)
-                rel[j] = np.concatenate([r.ravel(), t, _intrinsics(self.views[i].camera), kn])
+            rel = np.array(
+                [_rel_params(t_wn, camera, self.views[i].t_wc, self.views[i].camera) for i, _ in chosen]
+            )
         else:
-            deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 20))
+            deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 32))
         deps += [deps[0]] * (4 - len(deps))
         _raster(
             *labels, n, bbox, span_off, spans, np.concatenate(orders), order_off, inv, box, ids, n_bands,
@@ -1257,7 +1286,7 @@ class NovelViewRenderer:
         sigma = cfg.soft_sigma_deg if cfg.blend == 'soft' else -1.0  # < 0: ULR weights
         _blend(
             *rgbs, ids, inv, pen, zk, n, view_ids, tol, n_blend, sigma, cfg.ulr_blend_min_weight, *deps, rel,
-            iters, cfg.depth_lookup_max_px, out_rgb, valid, src, depth,
+            iters, cfg.depth_lookup_max_px, fit, cfg.depth_lookup_min_fit_px, out_rgb, valid, src, depth,
         )  # fmt: skip
         return Rendered(out_rgb, valid, src, depth, [i for i, _ in chosen], None, self.skipped_views)
 

@@ -270,21 +270,32 @@ def _fill_samples(offsets, indices, depth_flat, width, sky, n_elig, s_off, s_xy,
 
 
 @njit(cache=True)
-def _normal_inverses(tri, ab, s_off, s_xy, s_weight, shape_weight, usable, ninv):
-    """Invert every superpixel's 6x6 normal matrix (Cholesky); clears ``usable`` when singular."""
+def _normal_inverses(tri, ab, s_off, s_xy, s_weight, shape_weight, usable, ninv, gram):
+    """Invert every superpixel's 6x6 normal matrix (Cholesky); clears ``usable`` when singular.
+
+    ``gram[k]``: the weighted sums of the samples' barycentric products ``(aa, ab, ag, bb, bg, gg)``.
+    """
     n = np.empty((6, 6))
     lo = np.empty((6, 6))
     e = np.zeros(6)
     col = np.empty(6)
     for k in range(tri.shape[0]):
+        gram[k, :] = 0.0
         if not usable[k] or s_off[k + 1] - s_off[k] < 3:
             usable[k] = False
             ninv[k, :, :] = 0.0
             continue
         _shape_normal(ab[k, 0], ab[k, 1], shape_weight, n)
+        wk = s_weight[k]
         for i in range(s_off[k], s_off[k + 1]):
             al, be, ga = _bary(tri, k, np.float64(s_xy[i, 0]), np.float64(s_xy[i, 1]))
-            _add_bary(n, s_weight[k], al, be, ga)
+            _add_bary(n, wk, al, be, ga)
+            gram[k, 0] += wk * al * al
+            gram[k, 1] += wk * al * be
+            gram[k, 2] += wk * al * ga
+            gram[k, 3] += wk * be * be
+            gram[k, 4] += wk * be * ga
+            gram[k, 5] += wk * ga * ga
         if not _cholesky(n, lo):
             usable[k] = False
             ninv[k, :, :] = 0.0
@@ -338,11 +349,36 @@ def _anchor_depth(r, t, a, sky, near):
     return pz, math.degrees(math.acos(min(1.0, max(-1.0, c)))), res
 
 
+@njit(cache=True)
+def _sample_target(u, v, d, inf, ifx, ify, cx, cy, gx, gy, gcx, gcy, r, t, near):
+    """Novel-view pixel ``(x, y)`` of source pixel ``(u, v)`` at depth ``d`` (``inf``: a direction);
+    NaN when it is not in front of the novel camera (behind ``near``)."""
+    dx = (u - cx) * ifx
+    dy = (v - cy) * ify
+    xc = r[0, 0] * dx + r[0, 1] * dy + r[0, 2]
+    yc = r[1, 0] * dx + r[1, 1] * dy + r[1, 2]
+    zc = r[2, 0] * dx + r[2, 1] * dy + r[2, 2]
+    if inf:
+        if not zc > 1e-6 * math.sqrt(xc * xc + yc * yc + zc * zc):
+            return np.nan, np.nan
+    else:
+        xc = xc * d + t[0]
+        yc = yc * d + t[1]
+        zc = zc * d + t[2]
+        if not zc > near:
+            return np.nan, np.nan
+    iz = 1.0 / zc
+    return gx * xc * iz + gcx, gy * yc * iz + gcy
+
+
 @njit(cache=True, parallel=True)
 def _warp_kernel(
-    bm, ninv, usable, sky, anchor, s_off, s_xy, s_depth, s_weight, ki, kn, r, t, near, verts, z, pen, res, ok
-):
-    """Per-query warp of all superpixels: reproject samples, accumulate the rhs, ``V = N^-1 rhs``."""
+    bm, ninv, gram, usable, sky, anchor, s_off, s_xy, s_depth, s_weight, ki, kn, r, t, near, verts, z, pen,
+    res, fit, ok,
+):  # fmt: skip
+    """Per-query warp of all superpixels: reproject samples, accumulate the rhs, ``V = N^-1 rhs``;
+    ``fit[k]``: the RMS distance (px) between the samples' reprojections and their warped positions,
+    from the sums (``sum w |t|^2 - 2 V.rhs + V^T G V``, ``G`` the samples' Gram matrix)."""
     ifx, ify, cx, cy = 1.0 / ki[0], 1.0 / ki[1], ki[2], ki[3]
     gx, gy, gcx, gcy = kn[0], kn[1], kn[2], kn[3]
     for k in prange(bm.shape[0]):
@@ -351,38 +387,28 @@ def _warp_kernel(
         z[k] = np.nan
         pen[k] = np.inf
         res[k] = np.inf
+        fit[k] = np.inf
         if not usable[k]:
             continue
         inf = sky[k]
         zk, ang, rk = _anchor_depth(r, t, anchor[k], inf, near)
         if zk != zk:
             continue
-        r0 = r1 = r2 = r3 = r4 = r5 = 0.0
+        r0 = r1 = r2 = r3 = r4 = r5 = tt = 0.0
         w = s_weight[k]
         good = True
         for i in range(s_off[k], s_off[k + 1]):
             u = np.float64(s_xy[i, 0])
             v = np.float64(s_xy[i, 1])
-            dx = (u - cx) * ifx
-            dy = (v - cy) * ify
-            xc = r[0, 0] * dx + r[0, 1] * dy + r[0, 2]
-            yc = r[1, 0] * dx + r[1, 1] * dy + r[1, 2]
-            zc = r[2, 0] * dx + r[2, 1] * dy + r[2, 2]
-            if inf:
-                if not zc > 1e-6 * math.sqrt(xc * xc + yc * yc + zc * zc):
-                    good = False
-                    break
-            else:
-                d = np.float64(s_depth[i])
-                xc = xc * d + t[0]
-                yc = yc * d + t[1]
-                zc = zc * d + t[2]
-                if not zc > near:
-                    good = False
-                    break
-            iz = 1.0 / zc
-            tu = w * (gx * xc * iz + gcx)
-            tv = w * (gy * yc * iz + gcy)
+            tu, tv = _sample_target(
+                u, v, np.float64(s_depth[i]), inf, ifx, ify, cx, cy, gx, gy, gcx, gcy, r, t, near
+            )
+            if tu != tu:
+                good = False
+                break
+            tt += tu * tu + tv * tv
+            tu *= w
+            tv *= w
             be = bm[k, 0, 0] * u + bm[k, 0, 1] * v + bm[k, 0, 2]
             ga = bm[k, 1, 0] * u + bm[k, 1, 1] * v + bm[k, 1, 2]
             al = 1.0 - be - ga
@@ -405,6 +431,17 @@ def _warp_kernel(
                     + ninv[k, q, 4] * r4
                     + ninv[k, q, 5] * r5
                 )
+        sse = w * tt
+        g = gram[k]
+        for e in range(2):
+            va, vb, vc = verts[k, 0, e], verts[k, 1, e], verts[k, 2, e]
+            sse += g[0] * va * va + g[3] * vb * vb + g[5] * vc * vc
+            sse += 2.0 * (g[1] * va * vb + g[2] * va * vc + g[4] * vb * vc)
+        sse -= 2.0 * (
+            verts[k, 0, 0] * r0 + verts[k, 0, 1] * r1 + verts[k, 1, 0] * r2
+            + verts[k, 1, 1] * r3 + verts[k, 2, 0] * r4 + verts[k, 2, 1] * r5
+        )  # fmt: skip
+        fit[k] = math.sqrt(max(sse, 0.0) / (w * (s_off[k + 1] - s_off[k])))
         z[k] = zk
         pen[k] = ang
         res[k] = rk
@@ -465,6 +502,7 @@ class WarpModel:
         anchor: ``(K, 3)`` source optical-frame point of the centroid at the median depth (z-depth,
             metres); for sky superpixels the centroid's direction with ``z = 1``.
         ninv: ``(K, 6, 6)`` inverse normal matrices of Eq. 18.
+        gram: ``(K, 6)`` weighted sums of the samples' barycentric products (for ``fit_px``).
         sample_offsets: ``(K + 1,)`` CSR offsets into ``sample_xy`` / ``sample_depth``.
         sample_xy: ``(S, 2)`` uint16 pixel ``(x, y)`` of the reprojection samples.
         sample_depth: ``(S,)`` float32 their depth (``+inf`` for sky superpixels).
@@ -478,6 +516,7 @@ class WarpModel:
     sky: NDArray[np.bool_]
     anchor: NDArray[np.float64]
     ninv: NDArray[np.float64]
+    gram: NDArray[np.float64]
     sample_offsets: NDArray[np.int64]
     sample_xy: NDArray[np.uint16]
     sample_depth: NDArray[np.float32]
@@ -499,6 +538,7 @@ class WarpModel:
                 self.sky,
                 self.anchor,
                 self.ninv,
+                self.gram,
                 self.sample_offsets,
                 self.sample_xy,
                 self.sample_depth,
@@ -545,7 +585,10 @@ def prepare_warp(
     _fill_samples(stats.offsets, stats.indices, flat, w, sky, n_elig, s_off, s_xy, s_depth)
     s_weight = n_elig / np.maximum(n_take, 1)
     ninv = np.empty((k, 6, 6))
-    _normal_inverses(tri, shape_coefficients(tri), s_off, s_xy, s_weight, float(shape_weight), usable, ninv)
+    gram = np.empty((k, 6))
+    _normal_inverses(
+        tri, shape_coefficients(tri), s_off, s_xy, s_weight, float(shape_weight), usable, ninv, gram
+    )
     bm = np.empty((k, 2, 3))
     _bary_matrices(tri, bm)
     cen = np.nan_to_num(stats.centroid)
@@ -560,6 +603,7 @@ def prepare_warp(
         sky=sky,
         anchor=anchor,
         ninv=ninv,
+        gram=gram,
         sample_offsets=s_off,
         sample_xy=s_xy,
         sample_depth=s_depth,
@@ -578,6 +622,9 @@ class WarpResult:
         angle_deg: ``(K,)`` angle at the anchor between the source and novel rays (degrees; 0 sky).
         resolution: ``(K,)`` how much farther the source camera is from the anchor than the novel
             one, ``max(0, (|a - C_s| - |a - C_n|) / |a - C_s|)`` (ULR's resolution term; 0 sky).
+        fit_px: ``(K,)`` how well the affine warp fits: the RMS distance (novel-view pixels) between
+            the reprojection samples' exact reprojections and where the warp puts them (``inf``
+            where not ok).
         ok: ``(K,)`` warped and in front of the camera.
     """
 
@@ -585,6 +632,7 @@ class WarpResult:
     depth: NDArray[np.float64]
     angle_deg: NDArray[np.float64]
     resolution: NDArray[np.float64]
+    fit_px: NDArray[np.float64]
     ok: NDArray[np.bool_]
 
 
@@ -602,7 +650,7 @@ def warp_superpixels(
 ) -> WarpResult:
     """Warp every superpixel of a source view (pose ``t_ws``) into a novel view (pose ``t_wn``).
 
-    Poses are 4x4 camera-to-world; ``near`` (metres) is the depth-test plane of the novel camera.
+    Poses are 4x4 camera-to-world; ``near`` (metres) is the depth-test plane of the novel camera;
     """
     t_ns = np.linalg.inv(np.asarray(t_wn, dtype=np.float64)) @ np.asarray(t_ws, dtype=np.float64)
     k = model.n_labels
@@ -610,10 +658,12 @@ def warp_superpixels(
     z = np.empty(k)
     pen = np.empty(k)
     res = np.empty(k)
+    fit = np.empty(k)
     ok = np.empty(k, np.bool_)
     _warp_kernel(
         model.bary,
         model.ninv,
+        model.gram,
         model.usable,
         model.sky,
         model.anchor,
@@ -630,6 +680,7 @@ def warp_superpixels(
         z,
         pen,
         res,
+        fit,
         ok,
     )
-    return WarpResult(vertices=verts, depth=z, angle_deg=pen, resolution=res, ok=ok)
+    return WarpResult(vertices=verts, depth=z, angle_deg=pen, resolution=res, fit_px=fit, ok=ok)
