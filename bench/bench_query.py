@@ -26,6 +26,7 @@ import statistics
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +72,11 @@ def query_poses(samples: list, rng: np.random.Generator, n: int) -> list[np.ndar
     return out
 
 
+def as_sent(t_wc: np.ndarray) -> np.ndarray:
+    """Pose ``t_wc`` as the renderer node receives it (through ``geometry_msgs/PoseStamped``)."""
+    return msg_utils.pose_stamped_to_matrix(msg_utils.matrix_to_pose_stamped(t_wc))
+
+
 def main() -> int:
     camera, samples, frames, views = orbit_scene()
     rng = np.random.default_rng(0)
@@ -81,7 +87,10 @@ def main() -> int:
     )
     print(f'cpus: {os.cpu_count()}, load avg: {os.getloadavg()}')
 
-    # Baseline renderer in this process, views prepared and kernels compiled before any timing.
+    # Baseline renderer in this process, views prepared and kernels compiled before any timing. Its
+    # poses go through PoseStamped as the node's do (quaternions round off the last bits, which can
+    # move a nearest-pixel depth lookup), so that the replies can be compared pixel for pixel.
+    views = [replace(v, t_wc=as_sent(v.t_wc)) for v in views]
     renderer = NovelViewRenderer(views, RenderConfig(n_segments=N_SEGMENTS))
     for t_wc in warm:
         renderer.render(t_wc, camera)
@@ -145,7 +154,7 @@ def main() -> int:
                 ask(t_wc, 1 + k)
             for k, t_wc in enumerate(poses):  # paired: the same pose in this process, then over DDS
                 t = time.perf_counter()
-                out = renderer.render(t_wc, camera)
+                out = renderer.render(as_sent(t_wc), camera)
                 renders.append(1e3 * (time.perf_counter() - t))
                 ms, msg = ask(t_wc, 1000 + k)
                 trips.append(ms)
