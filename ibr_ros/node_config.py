@@ -56,7 +56,8 @@ def refiner_config(
 
 #: view_renderer parameters that configure the renderer: name -> (default, description, limits). The
 #: defaults are :class:`RenderConfig`'s; 0 switches an addition off. The paper's renderer: blend
-#: paper, depth_split 0, coverage_px 0, depth_tolerance 0, resolution_weight_deg 0, depth_lookup_steps 0.
+#: paper, depth_split 0, coverage_px 0, depth_tolerance 0, resolution_weight_deg 0, depth_lookup_steps 0,
+#: min_depth_samples 10.
 RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
     'renderer': ('ibr', "'ibr' (superpixel warp), 'splat' or 'ulr' (baselines)", None),
     'blend': ('ulr', "'ulr' (ULR weights), 'paper' (smallest angle penalty wins) or 'soft' (Gaussian)", None),
@@ -73,6 +74,7 @@ RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
         'correct only superpixels whose affine warp misses by more (RMS px)',
         (0.0, 1e3),
     ),
+    'min_depth_samples': (2, 'known-depth pixels a superpixel needs to be warped (paper: 10)', (1, 100000)),
     'max_axis_angle_deg': (90.0, 'ignore views facing farther away (deg)', (1.0, 180.0)),
     'far_factor': (3.0, 'distance limit = this x median scene depth', (0.01, 1e6)),
     'max_cached_views': (64, 'per-view caches kept (LRU)', (1, 100000)),
@@ -96,6 +98,7 @@ def render_config(values: dict[str, object]) -> RenderConfig:
             'depth_lookup_steps': int(v['depth_lookup_steps']),  # type: ignore[call-overload]
             'depth_lookup_max_px': float(v['depth_lookup_max_px']),  # type: ignore[arg-type]
             'depth_lookup_min_fit_px': float(v['depth_lookup_min_fit_px']),  # type: ignore[arg-type]
+            'min_depth_samples': int(v['min_depth_samples']),  # type: ignore[call-overload]
             'max_axis_angle_deg': float(v['max_axis_angle_deg']),  # type: ignore[arg-type]
             'far_factor': float(v['far_factor']),  # type: ignore[arg-type]
             'max_cached_views': int(v['max_cached_views']),  # type: ignore[call-overload]
