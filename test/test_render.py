@@ -338,7 +338,7 @@ def _blend_one_pixel(depths: list[float], tol: float | None) -> tuple[int, tuple
     tol_arg = -1.0 if tol is None else tol
     render_mod._blend(
         *rgbs, ids, np.zeros((n, 1, 2, 3)), pen, zk, n, np.arange(n, dtype=np.int16), tol_arg,
-        4, -1.0, 0.0, *dep, np.zeros((n, 32)), 0, 1.0, np.zeros((n, 1)), 0.0, *out,
+        4, -1.0, 0.0, *dep, np.zeros((n, 12)), 0, 1.0, np.zeros((n, 1)), 0.0, *out,
     )  # fmt: skip
     return int(out[2][0, 0]), tuple(int(c) for c in out[0][0, 0])
 

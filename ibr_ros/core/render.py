@@ -444,17 +444,16 @@ def _pick(a, b, c, d, j):
 
 
 @njit(cache=True)
-def _lands_near(d, rx, ry, rz, rel, x, y, thr2):
-    """Whether the source point at depth ``d`` along ray ``(rx, ry, rz)`` (source pixel direction
-    rotated into the novel frame; ``rel`` as in :func:`_refine_preimage`) projects within
-    ``sqrt(thr2)`` px of novel pixel ``(x, y)``; True for unknown depth or sky (only the affine map
-    is known there)."""
+def _lands_near(d, hx, hy, hz, rel, x, y, thr2):
+    """Whether a source pixel at depth ``d`` projects within ``sqrt(thr2)`` px of novel pixel
+    ``(x, y)``; ``(hx, hy, hz) = H (u, v, 1)`` of the source pixel, ``rel`` as in
+    :func:`_refine_preimage`. True for unknown depth or sky (only the affine map is known there)."""
     d = np.float64(d)
     if not (d > 0 and d < np.inf):
         return True
-    zc = rz * d + rel[11]
-    ex = rel[16] * (rx * d + rel[9]) + (rel[18] - x) * zc
-    ey = rel[17] * (ry * d + rel[10]) + (rel[19] - y) * zc
+    zc = hz * d + rel[11]
+    ex = hx * d + rel[9] - x * zc
+    ey = hy * d + rel[10] - y * zc
     return zc > 1e-6 and ex * ex + ey * ey <= thr2 * zc * zc
 
 
@@ -499,31 +498,27 @@ def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, de
             u = b00 * x0 + cu
             v = b10 * x0 + cv
             check = thr2 >= 0
-            rx = ry = rz = sx = sy = sz = 0.0
-            if check:  # the source ray at (u, v), rotated into the novel frame, is affine in x
-                dx0 = (u - rel[14]) / rel[12]
-                dy0 = (v - rel[15]) / rel[13]
-                ddx = b00 / rel[12]
-                ddy = b10 / rel[13]
-                rx = rel[0] * dx0 + rel[1] * dy0 + rel[2]
-                ry = rel[3] * dx0 + rel[4] * dy0 + rel[5]
-                rz = rel[6] * dx0 + rel[7] * dy0 + rel[8]
-                sx = rel[0] * ddx + rel[1] * ddy
-                sy = rel[3] * ddx + rel[4] * ddy
-                sz = rel[6] * ddx + rel[7] * ddy
+            hx = hy = hz = sx = sy = sz = 0.0
+            if check:  # H (u, v, 1) of the pre-image is affine in x along the row
+                hx = rel[0] * u + rel[1] * v + rel[2]
+                hy = rel[3] * u + rel[4] * v + rel[5]
+                hz = rel[6] * u + rel[7] * v + rel[8]
+                sx = rel[0] * b00 + rel[1] * b10
+                sy = rel[3] * b00 + rel[4] * b10
+                sz = rel[6] * b00 + rel[7] * b10
             for x in range(x0, x1 + 1):
                 if ids[y, x] < 0:
                     ui = min(max(int(u + 0.5), bx0), bx1)  # u >= bx0 - 0.5 > -1: int() is floor
                     vi = min(max(int(v + 0.5), by0), by1)
                     if labels[vi, ui] == kk and (
-                        not check or _lands_near(depth[vi, ui], rx, ry, rz, rel, x, y, thr2)
+                        not check or _lands_near(depth[vi, ui], hx, hy, hz, rel, x, y, thr2)
                     ):
                         ids[y, x] = k
                 u += b00
                 v += b10
-                rx += sx
-                ry += sy
-                rz += sz
+                hx += sx
+                hy += sy
+                hz += sz
 
 
 @njit(cache=True, parallel=True)
@@ -600,10 +595,10 @@ def _refine_preimage(depth, rel, x, y, u, v, a00, a01, a10, a11, iters, max_shif
 
     The superpixel's affine map gives ``(u, v)``; each step projects source pixel ``(u, v)`` at its
     own depth (nearest pixel) into the novel view and moves ``(u, v)`` by the affine map's linear part
-    ``a`` applied to the residual, by at most ``max_shift`` px in total. ``rel``: ``R`` (9), ``t``
-    (3), source ``fx, fy, cx, cy``, novel ``fx, fy, cx, cy``, then ``H = K_n R K_s^-1`` (9) and
-    ``K_n t`` (3), so that a source pixel at depth ``d`` lands at ``H (u, v, 1) d + K_n t``
-    (homogeneous). Unknown or sky depth stops the steps.
+    ``a`` applied to the residual, by at most ``max_shift`` px in total. ``rel``: ``H = K_n R K_s^-1``
+    (9, row-major) and ``K_n t`` (3) of the source-to-novel transform ``(R, t)``, so that source
+    pixel ``(u, v)`` at depth ``d`` lands at ``H (u, v, 1) d + K_n t`` (homogeneous novel-view
+    pixel). Unknown or sky depth stops the steps.
     """
     h, w = depth.shape
     u0, v0 = u, v
@@ -613,12 +608,12 @@ def _refine_preimage(depth, rel, x, y, u, v, a00, a01, a10, a11, iters, max_shif
         d = np.float64(depth[vi, ui])
         if not (d > 0 and d < np.inf):
             break
-        zc = (rel[26] * u + rel[27] * v + rel[28]) * d + rel[31]
+        zc = (rel[6] * u + rel[7] * v + rel[8]) * d + rel[11]
         if not zc > 1e-6:
             break
         iz = 1.0 / zc
-        rx = x - ((rel[20] * u + rel[21] * v + rel[22]) * d + rel[29]) * iz
-        ry = y - ((rel[23] * u + rel[24] * v + rel[25]) * d + rel[30]) * iz
+        rx = x - ((rel[0] * u + rel[1] * v + rel[2]) * d + rel[9]) * iz
+        ry = y - ((rel[3] * u + rel[4] * v + rel[5]) * d + rel[10]) * iz
         u = min(max(u + a00 * rx + a01 * ry, u0 - max_shift), u0 + max_shift)
         v = min(max(v + a10 * rx + a11 * ry, v0 - max_shift), v0 + max_shift)
     return u, v
@@ -970,8 +965,7 @@ def _rel_params(
     k_n = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     fx, fy, cx, cy = _intrinsics(source)
     k_s_inv = np.array([[1 / fx, 0.0, -cx / fx], [0.0, 1 / fy, -cy / fy], [0.0, 0.0, 1.0]])
-    h = k_n @ r @ k_s_inv
-    return np.concatenate([r.ravel(), t, _intrinsics(source), _intrinsics(novel), h.ravel(), k_n @ t])
+    return np.concatenate([(k_n @ r @ k_s_inv).ravel(), k_n @ t])
 
 
 class NovelViewRenderer:
@@ -1272,7 +1266,7 @@ class NovelViewRenderer:
                 [_rel_params(t_wn, camera, self.views[i].t_wc, self.views[i].camera) for i, _ in chosen]
             )
         else:
-            deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 32))
+            deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 12))
         deps += [deps[0]] * (4 - len(deps))
         _raster(
             *labels, n, bbox, span_off, spans, np.concatenate(orders), order_off, inv, box, ids, n_bands,
