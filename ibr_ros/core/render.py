@@ -117,7 +117,7 @@ from numpy.typing import ArrayLike, NDArray
 from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.geometry import GeometryError, validate_pose
 from ibr_ros.core.superpixels import slic, split_at_depth_edges, superpixel_stats
-from ibr_ros.core.warp import WarpModel, prepare_warp, warp_superpixels
+from ibr_ros.core.warp import WarpModel, prepare_warp, project_pixel, warp_superpixels
 
 __all__ = ['PAPER_FIELDS', 'NovelViewRenderer', 'RenderConfig', 'Rendered', 'SourceView']
 
@@ -762,31 +762,6 @@ def _blend(
 
 
 @njit(cache=True)
-def _project(r, t, ki, kn, u, v, d, near):
-    """Novel-view ``(x, y, z)`` of source pixel ``(u, v)`` at depth ``d`` (``+inf``: direction, z = inf).
-
-    ``z`` is NaN when the point is not in front of the camera.
-    """
-    dx = (u - ki[2]) / ki[0]
-    dy = (v - ki[3]) / ki[1]
-    xc = r[0, 0] * dx + r[0, 1] * dy + r[0, 2]
-    yc = r[1, 0] * dx + r[1, 1] * dy + r[1, 2]
-    zc = r[2, 0] * dx + r[2, 1] * dy + r[2, 2]
-    if d == np.inf:
-        if not zc > 1e-6 * math.sqrt(xc * xc + yc * yc + zc * zc):
-            return 0.0, 0.0, np.nan
-        zz = np.inf
-    else:
-        xc = xc * d + t[0]
-        yc = yc * d + t[1]
-        zc = zc * d + t[2]
-        if not zc > near:
-            return 0.0, 0.0, np.nan
-        zz = zc
-    return kn[0] * xc / zc + kn[2], kn[1] * yc / zc + kn[3], zz
-
-
-@njit(cache=True)
 def _splat(rgb, depth, ki, kn, r, t, near, out_rgb, out_z, claimed, with_colour):
     """Forward-splat every pixel with depth to its nearest novel pixel; keep the nearest (z-buffer)."""
     h, w = depth.shape
@@ -796,7 +771,7 @@ def _splat(rgb, depth, ki, kn, r, t, near, out_rgb, out_z, claimed, with_colour)
             d = np.float64(depth[v, u])
             if not d > 0:
                 continue
-            x, y, zz = _project(r, t, ki, kn, np.float64(u), np.float64(v), d, near)
+            x, y, zz = project_pixel(r, t, ki, kn, np.float64(u), np.float64(v), d, near)
             if zz != zz:
                 continue
             if not (-0.5 <= x < ow - 0.5 and -0.5 <= y < oh - 0.5):

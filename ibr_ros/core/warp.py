@@ -349,26 +349,31 @@ def _anchor_depth(r, t, a, sky, near):
     return pz, math.degrees(math.acos(min(1.0, max(-1.0, c)))), res
 
 
-@njit(cache=True)
-def _sample_target(u, v, d, inf, ifx, ify, cx, cy, gx, gy, gcx, gcy, r, t, near):
-    """Novel-view pixel ``(x, y)`` of source pixel ``(u, v)`` at depth ``d`` (``inf``: a direction);
-    NaN when it is not in front of the novel camera (behind ``near``)."""
-    dx = (u - cx) * ifx
-    dy = (v - cy) * ify
+@njit(cache=True, inline='always')
+def project_pixel(r, t, ki, kn, u, v, d, near):
+    """Novel-view ``(x, y, z)`` of source pixel ``(u, v)`` at depth ``d`` (``+inf``: direction, z = inf).
+
+    ``(r, t)``: source-to-novel rotation and translation; ``ki`` / ``kn``: ``fx, fy, cx, cy`` of the
+    source / novel camera. ``z`` is NaN when the point is not in front of the novel camera (at
+    ``z <= near``; for a direction, not ahead of it).
+    """
+    dx = (u - ki[2]) * (1.0 / ki[0])  # reciprocals: hoisted out of the callers' loops once inlined
+    dy = (v - ki[3]) * (1.0 / ki[1])
     xc = r[0, 0] * dx + r[0, 1] * dy + r[0, 2]
     yc = r[1, 0] * dx + r[1, 1] * dy + r[1, 2]
     zc = r[2, 0] * dx + r[2, 1] * dy + r[2, 2]
-    if inf:
+    if d == np.inf:
         if not zc > 1e-6 * math.sqrt(xc * xc + yc * yc + zc * zc):
-            return np.nan, np.nan
+            return 0.0, 0.0, np.nan
+        zz = np.inf
     else:
         xc = xc * d + t[0]
         yc = yc * d + t[1]
         zc = zc * d + t[2]
         if not zc > near:
-            return np.nan, np.nan
-    iz = 1.0 / zc
-    return gx * xc * iz + gcx, gy * yc * iz + gcy
+            return 0.0, 0.0, np.nan
+        zz = zc
+    return kn[0] * xc / zc + kn[2], kn[1] * yc / zc + kn[3], zz
 
 
 @njit(cache=True, parallel=True)
@@ -379,8 +384,6 @@ def _warp_kernel(
     """Per-query warp of all superpixels: reproject samples, accumulate the rhs, ``V = N^-1 rhs``;
     ``fit[k]``: the RMS distance (px) between the samples' reprojections and their warped positions,
     from the sums (``sum w |t|^2 - 2 V.rhs + V^T G V``, ``G`` the samples' Gram matrix)."""
-    ifx, ify, cx, cy = 1.0 / ki[0], 1.0 / ki[1], ki[2], ki[3]
-    gx, gy, gcx, gcy = kn[0], kn[1], kn[2], kn[3]
     for k in prange(bm.shape[0]):
         ok[k] = False
         verts[k, :, :] = np.nan
@@ -400,10 +403,8 @@ def _warp_kernel(
         for i in range(s_off[k], s_off[k + 1]):
             u = np.float64(s_xy[i, 0])
             v = np.float64(s_xy[i, 1])
-            tu, tv = _sample_target(
-                u, v, np.float64(s_depth[i]), inf, ifx, ify, cx, cy, gx, gy, gcx, gcy, r, t, near
-            )
-            if tu != tu:
+            tu, tv, zz = project_pixel(r, t, ki, kn, u, v, np.float64(s_depth[i]), near)  # sky: +inf
+            if zz != zz:
                 good = False
                 break
             tt += tu * tu + tv * tv
