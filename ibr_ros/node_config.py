@@ -80,31 +80,19 @@ RENDER_PARAMETERS: dict[str, tuple[object, str, tuple[float, float] | None]] = {
     'max_cached_views': (64, 'per-view caches kept (LRU)', (1, 100000)),
 }
 
+#: RENDER_PARAMETERS whose RenderConfig field is None (off) at 0.
+_OFF_AT_ZERO = ('depth_split', 'coverage_px', 'depth_tolerance')
+
 
 def render_config(values: dict[str, object]) -> RenderConfig:
     """The view_renderer's :data:`RENDER_PARAMETERS` (missing ones take their defaults) as a
     :class:`RenderConfig`; a bad value is a :class:`UserError` naming the parameter."""
-    v = {name: values.get(name, spec[0]) for name, spec in RENDER_PARAMETERS.items()}
-    try:
-        fields = {
-            'renderer': str(v['renderer']),
-            'blend': str(v['blend']),
-            'n_views': int(v['n_views']),  # type: ignore[call-overload]
-            'n_segments': int(v['n_segments']),  # type: ignore[call-overload]
-            'depth_split': float(v['depth_split']) or None,  # type: ignore[arg-type]
-            'coverage_px': float(v['coverage_px']) or None,  # type: ignore[arg-type]
-            'depth_tolerance': float(v['depth_tolerance']) or None,  # type: ignore[arg-type]
-            'resolution_weight_deg': float(v['resolution_weight_deg']),  # type: ignore[arg-type]
-            'depth_lookup_steps': int(v['depth_lookup_steps']),  # type: ignore[call-overload]
-            'depth_lookup_max_px': float(v['depth_lookup_max_px']),  # type: ignore[arg-type]
-            'depth_lookup_min_fit_px': float(v['depth_lookup_min_fit_px']),  # type: ignore[arg-type]
-            'min_depth_samples': int(v['min_depth_samples']),  # type: ignore[call-overload]
-            'max_axis_angle_deg': float(v['max_axis_angle_deg']),  # type: ignore[arg-type]
-            'far_factor': float(v['far_factor']),  # type: ignore[arg-type]
-            'max_cached_views': int(v['max_cached_views']),  # type: ignore[call-overload]
-        }
+    try:  # each value as the type of its default (str, int or float)
+        fields = {name: type(spec[0])(values.get(name, spec[0])) for name, spec in RENDER_PARAMETERS.items()}
     except (TypeError, ValueError) as exc:
         raise UserError(f'bad view_renderer parameter value: {exc}') from exc
+    for name in _OFF_AT_ZERO:
+        fields[name] = fields[name] or None
     try:
         return RenderConfig(**fields)  # type: ignore[arg-type]
     except ValueError as exc:
