@@ -54,11 +54,13 @@ setup(
         (f'lib/{PACKAGE}', _launchers()),
     ],
     install_requires=['setuptools'],
+    tests_require=['pytest'],  # colcon test runs pytest on test/ (ament_python)
+    extras_require={'test': ['pytest']},
     zip_safe=True,
     maintainer='ibr_ros developers',
     maintainer_email='ibr-ros@example.com',
     description='Image-based rendering for drone captures as a ROS 2 node graph.',
     license='BSD-3-Clause',
     python_requires='>=3.10',
-    entry_points={'console_scripts': [f'{n} = {t}' for n, t in sorted(SCRIPTS.items())]},
+    entry_points={'console_scripts': [f'{n} = {PACKAGE}.launch_entry:main' for n in sorted(SCRIPTS)]},
 )

@@ -1,16 +1,22 @@
 """Start the ibr_ros node graph as separate processes, where ``ros2 launch`` is not available.
 
-Each node runs as ``python -m ibr_ros.nodes.<name> --ros-args --params-file <config>/<name>.yaml``
-(the same parameters as ``launch/ibr_graph.launch.py``) plus per-node overrides. Ctrl-C (SIGINT)
-and SIGTERM are forwarded to every node; nodes still running after ``grace_s`` are terminated.
+Each node runs as ``python -P -m ibr_ros.launch_entry <name> --ros-args --params-file
+<config>/<name>.yaml`` (the installed package, not a checkout in the working directory; the same
+parameters as ``launch/ibr_graph.launch.py``) plus per-node overrides. :meth:`Graph.stop` sends
+SIGINT to every node, then SIGTERM and SIGKILL to those still running after ``grace_s``; a node
+whose parent dies (even by SIGKILL) gets SIGTERM from the kernel, so no node outlives its graph.
+:func:`camera_topics` names the topics of a bag that the frame_subsampler subscribes, for the
+bag_player's ``wait_topics``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -18,7 +24,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ['GRAPH_NODES', 'Graph', 'NodeSpec', 'config_dir', 'node_command']
+__all__ = ['GRAPH_NODES', 'Graph', 'NodeSpec', 'camera_topics', 'claim_domain', 'config_dir', 'node_command']
 
 LOG = logging.getLogger(__name__)
 
@@ -46,6 +52,42 @@ def config_dir() -> Path:
     if not checkout.is_dir() and in_prefix.is_dir():
         return in_prefix
     return checkout
+
+
+def camera_topics(bag: Path | str) -> list[str]:
+    """The topics of ``bag`` that the frame_subsampler subscribes with its defaults (``camera/image_raw``,
+    else ``camera/image_raw/compressed``; ``camera/camera_info``; ``camera/pose``), as recorded."""
+    from ibr_ros.bag import open_bag
+
+    with open_bag(bag) as reader:
+        names = set(reader.topics)
+    image = [t for t in ('/camera/image_raw', '/camera/image_raw/compressed') if t in names][:1]
+    return image + [t for t in ('/camera/camera_info', '/camera/pose') if t in names]
+
+
+def claim_domain(first: int) -> tuple[int, socket.socket]:
+    """A ROS_DOMAIN_ID of this host's own, from ``first`` (cycling through 1..100), and its lock.
+
+    Fast DDS gives domain d the ports 7400 + 250 d + 0..249 and uses the last ones only for a 119th
+    participant; binding 127.0.0.1:(7400 + 250 d + 249) is this process's lock on d (held as long as
+    the returned socket is open), so two isolated runs on one machine never share a domain.
+    """
+    for k in range(100):
+        domain = 1 + (first - 1 + k) % 100
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.bind(('127.0.0.1', 7400 + 250 * domain + 249))
+        except OSError:
+            sock.close()
+            continue
+        return domain, sock
+    raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 (all lock ports are bound)')
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)
 
 
 def _ros_value(value: object) -> str:
@@ -76,7 +118,8 @@ class NodeSpec:
 
 def node_command(spec: NodeSpec, *, config: Path | None = None, python: str = sys.executable) -> list[str]:
     """Command line of one node process."""
-    cmd = [python, '-m', f'ibr_ros.nodes.{spec.name}', '--ros-args']
+    isolated = ['-P'] if sys.version_info >= (3, 11) else []  # no working directory on sys.path
+    cmd = [python, *isolated, '-m', 'ibr_ros.launch_entry', spec.name, '--ros-args']
     params_file = (config or config_dir()) / f'{spec.name}.yaml'
     if params_file.is_file():
         cmd += ['--params-file', str(params_file)]
@@ -117,7 +160,11 @@ class Graph:
             cmd = node_command(spec, config=self.config)
             LOG.info('starting %s: %s', spec.label, ' '.join(cmd))
             self.procs[spec.label] = subprocess.Popen(
-                cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT if out else None
+                cmd,
+                env=self.env,
+                stdout=out,
+                stderr=subprocess.STDOUT if out else None,
+                preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None,
             )
             if out is not None:
                 out.close()

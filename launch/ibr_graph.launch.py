@@ -1,9 +1,12 @@
 """Launch the ibr_ros node graph on a real ROS 2 install (``ros2 launch ibr_ros ibr_graph.launch.py``).
 
-Arguments: ``bag`` (path; empty = no bag_player, feed live topics), ``rate`` (replay rate),
-``refiners`` (sharded depth_refiner processes), ``config_dir`` (parameter files, default: the
-installed share/ibr_ros/config). ``ibr graph`` starts the same processes where ``ros2 launch``
-is missing.
+Arguments: ``bag`` (path; empty = no bag_player, feed live topics), ``rate`` (replay rate, 0 = as
+fast as possible: nothing is lost, the player waits for the frame_subsampler), ``refiners`` (sharded
+depth_refiner processes), ``image_transport`` (``auto`` / ``raw`` / ``compressed``), ``pose_source``
+(``auto`` / ``topic`` / ``none``), ``scene_depth_m`` (0 = estimate), ``max_neighbours`` (MVS
+source views), ``config_dir`` (parameter files, default: the installed share/ibr_ros/config). The
+bag_player starts playing once the frame_subsampler subscribes the bag's camera topics. ``ibr graph``
+starts the same processes where ``ros2 launch`` is missing.
 """
 
 import os
@@ -14,37 +17,57 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+#: name -> (default, description) of the launch arguments besides bag and config_dir.
+ARGUMENTS = {
+    'rate': ('1.0', 'replay rate; 0 = as fast as possible (lossless)'),
+    'refiners': ('1', 'sharded depth_refiner processes'),
+    'image_transport': ('auto', "frame_subsampler camera images: 'auto', 'raw' or 'compressed'"),
+    'pose_source': ('auto', "frame_subsampler poses: 'auto', 'topic' or 'none' (SfM)"),
+    'scene_depth_m': ('0.0', 'typical scene depth (m) for keyframe spacing and MVS; 0 = estimate'),
+    'max_neighbours': ('4', 'MVS source views per keyframe'),
+}
+
 
 def _nodes(context, *args, **kwargs):
-    config = LaunchConfiguration('config_dir').perform(context)
-    bag = LaunchConfiguration('bag').perform(context)
-    rate = float(LaunchConfiguration('rate').perform(context))
-    refiners = int(LaunchConfiguration('refiners').perform(context))
+    from ibr_ros.graph import camera_topics
+
+    arg = {name: LaunchConfiguration(name).perform(context) for name in ('config_dir', 'bag', *ARGUMENTS)}
+    config, bag, refiners = arg['config_dir'], arg['bag'], int(arg['refiners'])
+    scene_depth = float(arg['scene_depth_m'])
 
     def params(name, extra=None):
         return [os.path.join(config, f'{name}.yaml'), *([extra] if extra else [])]
 
     actions = []
     if bag:
+        player = {
+            'bag': bag,
+            'rate': float(arg['rate']),
+            'wait_for_subscribers': 1,
+            'wait_timeout_s': 0.0,
+            'wait_topics': camera_topics(bag),
+        }
         actions.append(
-            Node(
-                package='ibr_ros',
-                executable='bag_player',
-                name='bag_player',
-                parameters=params('bag_player', {'bag': bag, 'rate': rate}),
-                output='screen',
-            )
-        )
+            Node(package='ibr_ros', executable='bag_player', name='bag_player',
+                 parameters=params('bag_player', player), output='screen')
+        )  # fmt: skip
+    subsampler = {
+        'image_transport': arg['image_transport'],
+        'pose_source': arg['pose_source'],
+        'scene_depth_m': scene_depth,
+    }
     actions.append(
         Node(package='ibr_ros', executable='frame_subsampler', name='frame_subsampler',
-             parameters=params('frame_subsampler'), output='screen')
+             parameters=params('frame_subsampler', subsampler), output='screen')
     )  # fmt: skip
     for i in range(refiners):
-        shard = {'worker_index': i, 'num_workers': refiners} if refiners > 1 else None
+        refiner = {'max_neighbours': int(arg['max_neighbours']), 'scene_depth_m': scene_depth}
+        if refiners > 1:
+            refiner.update(worker_index=i, num_workers=refiners)
         actions.append(
             Node(package='ibr_ros', executable='depth_refiner',
                  name=f'depth_refiner_{i}' if refiners > 1 else 'depth_refiner',
-                 parameters=params('depth_refiner', shard), output='screen')
+                 parameters=params('depth_refiner', refiner), output='screen')
         )  # fmt: skip
     actions.append(
         Node(package='ibr_ros', executable='view_renderer', name='view_renderer',
@@ -58,10 +81,7 @@ def generate_launch_description():
     return LaunchDescription(
         [
             DeclareLaunchArgument('bag', default_value='', description='bag to replay (empty: live topics)'),
-            DeclareLaunchArgument('rate', default_value='1.0', description='replay rate'),
-            DeclareLaunchArgument(
-                'refiners', default_value='1', description='sharded depth_refiner processes'
-            ),
+            *(DeclareLaunchArgument(n, default_value=d, description=t) for n, (d, t) in ARGUMENTS.items()),
             DeclareLaunchArgument(
                 'config_dir', default_value=os.path.join(share, 'config'), description='parameter files'
             ),

@@ -47,6 +47,7 @@ from msg_utils.pose import (
     pose_to_matrix,
     transform_stamped_to_matrix,
 )
+from msg_utils.status import pairs_to_status, status_to_pairs
 
 __all__ = [
     'ENCODINGS',
@@ -79,10 +80,12 @@ __all__ = [
     'numpy_to_compressed_image',
     'numpy_to_image',
     'odometry_to_matrix',
+    'pairs_to_status',
     'pinhole_to_camera_info',
     'pose_stamped_to_matrix',
     'pose_to_matrix',
     'stamp_to_ns',
+    'status_to_pairs',
     'transform_stamped_to_matrix',
     'typestore',
 ]

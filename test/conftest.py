@@ -9,7 +9,6 @@ domain. Nodes a test made with ``rclpy.create_node`` are destroyed after it, fai
 from __future__ import annotations
 
 import os
-import socket
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,31 +16,15 @@ from pathlib import Path
 import pytest
 import rclpy
 
+from ibr_ros.graph import claim_domain
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def _claim_domain(first: int) -> tuple[int, socket.socket]:
-    """The first domain from ``first`` (cycling through 1..100) whose lock port this process can bind.
-
-    Fast DDS gives domain d the ports 7400 + 250 d + 0..249 and uses the last ones only for a 119th
-    participant; port 7400 + 250 d + 249 on 127.0.0.1 is this run's lock on d.
-    """
-    for k in range(100):
-        domain = 1 + (first - 1 + k) % 100
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            sock.bind(('127.0.0.1', 7400 + 250 * domain + 249))
-        except OSError:
-            sock.close()
-            continue
-        return domain, sock
-    raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 for this test run (all lock ports are bound)')
 
 
 if 'IBR_TEST_DOMAIN_ID' in os.environ:
     DOMAIN_ID = int(os.environ['IBR_TEST_DOMAIN_ID'])
 else:
-    DOMAIN_ID, _DOMAIN_LOCK = _claim_domain(1 + os.getpid() % 100)
+    DOMAIN_ID, _DOMAIN_LOCK = claim_domain(1 + os.getpid() % 100)
 
 os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'

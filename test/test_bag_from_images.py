@@ -20,6 +20,7 @@ from ibr_ros.jobs.images_to_bag import TOPICS, images_to_bag
 BRIGHTON = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'brighton_beach'
 
 
+@pytest.mark.skipif(not BRIGHTON.is_dir(), reason='needs ../shared/data/brighton_beach (not in a user clone)')
 def test_brighton_beach_to_bag(tmp_path):
     out = tmp_path / 'bb'
     result = images_to_bag(BRIGHTON, out, max_width=800)

@@ -45,7 +45,7 @@ def subsampler(repo, ros_env):
     proc = subprocess.Popen(
         [sys.executable, '-m', 'ibr_ros.nodes.frame_subsampler', '--ros-args',
          '--params-file', str(repo / 'config' / 'frame_subsampler.yaml'),
-         '-p', 'compressed:=true', '-p', 'scene_depth_m:=120.0'],
+         '-p', 'image_transport:=compressed', '-p', 'scene_depth_m:=120.0'],
         env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     yield proc
@@ -114,7 +114,8 @@ def test_keyframes_from_the_shipped_bag(repo, subsampler):
 
 
 def test_keyframes_without_poses(repo):
-    """No camera/pose: after ``pose_timeout_s`` the sharpest frame of every 1 s window, no pose topic."""
+    """No camera/pose publisher (``pose_source`` auto): the sharpest frame of every 1 s window, no pose
+    topic; the last window's keyframe once the camera stream ends."""
     import cv2
 
     from ibr_ros.nodes.frame_subsampler import FrameSubsampler
@@ -123,7 +124,7 @@ def test_keyframes_without_poses(repo):
     frames = [(f['stamp'], f['rgb'], f['camera']) for f in shipped_frames(repo, range(0, 60, 2), (320, 180))]
     blurred = {frames[k][0] for k in (3, 12, 13, 14)}  # never keyframes
     t0 = frames[0][0]
-    params = {'pose_timeout_s': 0.5, 'poseless_interval_s': 1.0}
+    params = {'poseless_interval_s': 1.0}
     with in_process(FrameSubsampler, None, 'poseless_feeder', **params) as h:
         node = h.node
         got = {
@@ -145,9 +146,10 @@ def test_keyframes_without_poses(repo):
             assert h.wait(
                 lambda s=stamp, n=k + 1: 'image' in node.frames.partial(s) or node.frames_seen >= n, 10
             )
-        # Six 1 s windows: five closed by the next window's frames, the last after 1 s without frames.
+        # Six 1 s windows: five closed by the next window's frames, the last when the camera stops.
+        h.feeder.destroy_publisher(pubs['image'])
         assert h.wait(lambda: len(got['image']) == 6 and len(got['info']) == 6, 20), node.interval.rejected
-        assert node.poseless
+        assert node.pose_source.state == 'none'
         assert node.frames_seen == len(frames)
         bad = dict(node.bad.counts)
     assert bad == {}
@@ -185,7 +187,7 @@ def test_target_keyframes_live_hint(repo):
         'target_keyframes': 25,
         'expected_path_m': path_m,
         'scene_depth_m': 120.0,
-        'pose_timeout_s': 0.0,
+        'pose_source': 'topic',
     }
     with in_process(FrameSubsampler, repo / 'config' / 'frame_subsampler.yaml', **params) as h:
         node = h.node

@@ -210,8 +210,8 @@ def test_cli_errors(flight, processed, tmp_path, capsys):
     off.write_text('depth_refiner:\n  ros__parameters:\n    sfm_mode: "off"\n')
     assert 'no pose topic' in (err := run(str(no_pose), '--out', str(tmp_path / 'o1'), '--params', str(off)))
     assert 'sfm_mode is off' in err
-    off.write_text('frame_subsampler:\n  ros__parameters:\n    pose_timeout_s: 0.0\n')
-    assert 'pose_timeout_s is 0' in run(str(no_pose), '--out', str(tmp_path / 'o1'), '--params', str(off))
+    off.write_text('frame_subsampler:\n  ros__parameters:\n    pose_source: topic\n')
+    assert "pose_source is 'topic'" in run(str(no_pose), '--out', str(tmp_path / 'o1'), '--params', str(off))
     off.write_text('depth_refiner:\n  ros__parameters:\n    sfm_scale: depth\n')
     assert 'sfm_scale_m must be > 0' in run(str(flight), '--out', str(tmp_path / 'o1'), '--params', str(off))
     no_info = tmp_path / 'no_info'

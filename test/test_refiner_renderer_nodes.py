@@ -325,11 +325,10 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
 
 def test_refiner_flush_refine_again_debug_and_poseless_frames(repo, bag, ros_env):
     """Few keyframes: refined with one neighbour after ``flush_after_s``, again when a third arrives."""
-    # sfm_pose_wait_s 60: the poseless frames only warn. The test sees its pose publisher matched, but
-    # the refiner's reader may match it a DDS heartbeat (3 s) later; SfM mode must not start meanwhile.
+    # Without a keyframes/status saying the flight has no poses, frames without a pose only wait.
     proc = _node(
         repo, 'depth_refiner', ros_env, 'max_neighbours:=2', 'flush_after_s:=1.0', 'refine_again:=true',
-        'publish_debug:=true', 'sfm_pose_wait_s:=60.0',
+        'publish_debug:=true',
     )  # fmt: skip
     rclpy.init()
     try:
@@ -350,7 +349,7 @@ def test_refiner_flush_refine_again_debug_and_poseless_frames(repo, bag, ros_env
         )
         for k in range(3):  # frames without a pose, fewer than sfm_min_keyframes: a warning says why
             send(0, pose=False, stamp=bag[0]['stamp'] - 1000 + k)
-        warned = lambda: 'without keyframes/pose: SfM mode starts once 4' in proc.text  # noqa: E731
+        warned = lambda: 'before their keyframes/pose: waiting for their poses' in proc.text  # noqa: E731
         assert spin_until(node, warned, 20), proc.text
         send(0)
         send(24)

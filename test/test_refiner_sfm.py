@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from node_harness import (
     assert_refuses_to_start,
@@ -24,8 +25,9 @@ from node_harness import (
 from sensor_msgs.msg import Image
 
 import msg_utils
+from ibr_ros.core.live import FlightStatus
 from ibr_ros.core.sfm import umeyama
-from ibr_ros.nodes.common import model_qos
+from ibr_ros.nodes.common import latched_qos, model_qos
 
 FRAMES = tuple(range(0, 192, 24))
 SIZE = (320, 180)
@@ -56,8 +58,7 @@ def test_refiner_registers_and_refines_keyframes_without_poses(repo, keyframes):
     from ibr_ros.nodes.depth_refiner import DepthRefinerNode
 
     config = repo / 'config' / 'depth_refiner.yaml'
-    params = {'sfm_pose_wait_s': 0.5, 'sfm_min_keyframes': 5, 'sfm_every': 3, 'flush_after_s': 2.0,
-              'max_neighbours': 2}  # fmt: skip
+    params = {'sfm_min_keyframes': 5, 'sfm_every': 3, 'flush_after_s': 2.0, 'max_neighbours': 2}
     with in_process(DepthRefinerNode, config, 'sfm_refiner_feeder', **params) as h:
         node = h.node
         assert (node.sfm_mode, node.sfm_active) == ('auto', False)
@@ -67,6 +68,10 @@ def test_refiner_registers_and_refines_keyframes_without_poses(repo, keyframes):
         pubs = h.publishers({k: spec[k] for k in ('image', 'info')})
         # The refiner's pose publisher and the feeder's pose subscription must be matched.
         assert h.wait(lambda: node.pub_pose.get_subscription_count() >= 1, 30)
+        # The frame_subsampler's latched status: this flight has no poses.
+        status = h.publishers({'s': (DiagnosticStatus, 'keyframes/status', latched_qos())})['s']
+        status.publish(msg_utils.pairs_to_status('t', FlightStatus(pose_source='none').to_pairs()))
+        assert h.wait(lambda: node.sfm_active, 30)
 
         def send(frames: list[dict]) -> None:
             for f in frames:
@@ -119,14 +124,16 @@ def test_refiner_registers_and_refines_keyframes_without_poses(repo, keyframes):
     assert max(rels) < 0.1, rels
 
 
-def test_auto_sfm_starts_only_when_enough_keyframes_each_waited(ros_env, monkeypatch):
-    """'auto' counts a keyframe only once it has itself waited ``sfm_pose_wait_s``: a keyframe whose
-    image arrived just now (its pose may be on the way) does not complete ``sfm_min_keyframes``."""
+def test_auto_sfm_starts_only_when_the_status_says_no_poses(monkeypatch):
+    """'auto' never starts SfM on its own, however long keyframes wait for their poses: only when
+    keyframes/status says the flight has no poses (then the waiting ones are registered first)."""
     import rclpy
 
+    import msg_utils
+    from ibr_ros.core.live import FlightStatus
     from ibr_ros.nodes.depth_refiner import DepthRefinerNode
 
-    rclpy.init(args=['--ros-args', '-p', 'sfm_min_keyframes:=4', '-p', 'sfm_pose_wait_s:=2.0'])
+    rclpy.init(args=['--ros-args', '-p', 'sfm_min_keyframes:=4'])
     node = None
     try:
         node = DepthRefinerNode()
@@ -135,13 +142,14 @@ def test_auto_sfm_starts_only_when_enough_keyframes_each_waited(ros_env, monkeyp
         monkeypatch.setattr(node.frames, 'discard', lambda stamp: None)
         added: list[int] = []
         monkeypatch.setattr(node, '_add_poseless', lambda stamp, *rest: added.append(stamp))
-        now = time.monotonic()
-        node._waiting = {1: now - 3.0, 2: now - 3.0, 3: now - 3.0, 4: now}
-        node._maybe_start_sfm()
+        node._poseless = {1, 2, 3, 4}
+        status = lambda **v: msg_utils.pairs_to_status('t', FlightStatus(**v).to_pairs())  # noqa: E731
+        node._on_status(status(pose_source='pose'))
         assert not node.sfm_active
-        assert added == []
-        node._waiting[4] = now - 2.5
-        node._maybe_start_sfm()
+        node._on_status(status(pose_source='unknown', camera='ended'))
+        assert not node.sfm_active
+        assert node._ended
+        node._on_status(status(pose_source='none'))
         assert node.sfm_active
         assert added == [1, 2, 3, 4]
     finally:

@@ -31,7 +31,17 @@ def build_specs(args: argparse.Namespace) -> list:
             raise UserError('--bag is required (or --no-player to feed the graph from live topics)')
         if not Path(args.bag).exists():
             raise UserError(f'{args.bag}: no such bag')
-        params = {'bag': str(Path(args.bag).resolve()), 'rate': args.rate, 'loop': args.loop}
+        from ibr_ros.graph import camera_topics
+
+        params = {
+            'bag': str(Path(args.bag).resolve()),
+            'rate': args.rate,
+            'loop': args.loop,
+            # Playback starts once the frame_subsampler listens: nothing of the flight is lost.
+            'wait_for_subscribers': 1,
+            'wait_timeout_s': 0.0,
+            'wait_topics': camera_topics(args.bag),
+        }
         specs.append(NodeSpec('bag_player', {**params, **sets.pop('bag_player', {})}))
     specs.append(NodeSpec('frame_subsampler', sets.pop('frame_subsampler', {})))
     refiner = sets.pop('depth_refiner', {})
@@ -47,6 +57,9 @@ def build_specs(args: argparse.Namespace) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from ibr_ros.graph import Graph
+    from ibr_ros.launch_entry import sigterm_as_interrupt
+
+    sigterm_as_interrupt()  # SIGTERM stops the nodes as Ctrl-C does
 
     if args.refiners < 1:
         raise UserError(f'--refiners must be >= 1, got {args.refiners}')
@@ -66,8 +79,10 @@ def run(args: argparse.Namespace) -> int:
                     break
                 time.sleep(0.2)
         except KeyboardInterrupt:
-            print('ibr graph: interrupted, stopping nodes', flush=True)
-    print(f'ibr graph: stopped ({graph.poll()})', flush=True)
+            why = 'interrupted; '
+        else:
+            why = ''
+    print(f'ibr graph: {why}stopped ({graph.poll()})', flush=True)
     return 0
 
 

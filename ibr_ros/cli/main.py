@@ -14,6 +14,7 @@ import sys
 
 from ibr_ros import __version__
 from ibr_ros.errors import UserError
+from ibr_ros.launch_entry import interrupted as _interrupted
 
 SUBCOMMAND_MODULES = (
     'ibr_ros.cli.bag',
@@ -51,9 +52,11 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f'ibr {args.command}: error: {exc}', file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f'ibr {args.command}: interrupted', file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, SystemError) as exc:  # numba wraps a Ctrl-C in a SystemError
+        if not _interrupted(exc):
+            raise
+        print(f'ibr {args.command}: interrupted, stopped', file=sys.stderr)
+        return 0
 
 
 if __name__ == '__main__':

@@ -986,8 +986,9 @@ def _colmap_depth_maps(
     ``photometric_depth`` is COLMAP's photometric map, ``depth`` its geometric one; COLMAP does not
     report per-pixel consistency counts, so ``n_consistent`` is ``min_consistent`` where kept.
     """
-    import pycolmap
+    from ibr_ros.core.colmap import pycolmap as _import_pycolmap
 
+    pycolmap = _import_pycolmap()
     if not getattr(pycolmap, 'has_cuda', False):
         raise MvsBackendUnavailable(
             "MVS backend 'colmap' runs pycolmap.patch_match_stereo, which needs CUDA: "

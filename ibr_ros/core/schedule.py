@@ -7,6 +7,9 @@ no image work itself.
 * Sharding: with ``num_workers`` > 1 every worker sees all keyframes (they are everybody's
   neighbours) but refines only those whose stamp hashes to its ``worker_index`` (:func:`shard_of`,
   independent of arrival order), so each keyframe is refined exactly once.
+  :meth:`RefineScheduler.reassign` changes the rule (a dead worker's keyframes go to the live ones,
+  :class:`~ibr_ros.core.live.ShardMembership`) and :meth:`RefineScheduler.published_elsewhere` marks
+  keyframes whose depth another worker published.
 * Due: a keyframe of this worker is due once :func:`~ibr_ros.core.mvs.select_neighbours` finds
   ``min_neighbours`` source views among the keyframes added so far, or, with ``flush`` (the end of
   a flight), at least one; never again with the same or fewer neighbours than a failed attempt.
@@ -26,7 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -167,6 +170,7 @@ class _Keyframe:
     used: tuple[int, ...] = ()  # neighbour stamps of the last successful refinement
     failed_with: int = -1  # neighbour count of the last failed attempt
     alone_warned: bool = False
+    elsewhere: bool = False  # its depth was published by another worker
 
 
 class RefineScheduler:
@@ -180,6 +184,8 @@ class RefineScheduler:
         self._kfs: dict[int, _Keyframe] = {}
         self._warnings: list[str] = []
         self._range_warned = False
+        self._elsewhere: set[int] = set()
+        self._owns: Callable[[int], bool] = self._shard_owns
 
     def __len__(self) -> int:
         return len(self._kfs)
@@ -187,25 +193,52 @@ class RefineScheduler:
     def __contains__(self, stamp: object) -> bool:
         return stamp in self._kfs
 
+    def _shard_owns(self, stamp_ns: int) -> bool:
+        return shard_of(stamp_ns, self.config.num_workers) == self.config.worker_index
+
     def is_mine(self, stamp_ns: int) -> bool:
         """Whether this worker refines the keyframe stamped ``stamp_ns``."""
-        return shard_of(stamp_ns, self.config.num_workers) == self.config.worker_index
+        return self._owns(int(stamp_ns))
+
+    def reassign(self, owns: Callable[[int], bool]) -> list[int]:
+        """Decide ownership with ``owns(stamp)`` from now on (e.g. a dead worker's keyframes are taken
+        over); the stamps this worker gained, oldest first."""
+        self._owns = owns
+        gained = []
+        for kf in sorted(self._kfs.values(), key=lambda k: k.stamp):
+            mine = owns(kf.stamp)
+            if mine and not kf.mine and not kf.used and not kf.elsewhere:
+                gained.append(kf.stamp)
+            kf.mine = mine
+        return gained
+
+    def published_elsewhere(self, stamp_ns: int) -> None:
+        """Another worker published the depth of ``stamp_ns`` (known yet or not): never refine it here."""
+        stamp = int(stamp_ns)
+        self._elsewhere.add(stamp)
+        if (kf := self._kfs.get(stamp)) is not None:
+            kf.elsewhere = True
 
     def add(self, stamp_ns: int, view: MvsView) -> bool:
         """Add a keyframe; False (and nothing changes) when ``stamp_ns`` is already known."""
         stamp = int(stamp_ns)
         if stamp in self._kfs:
             return False
-        self._kfs[stamp] = _Keyframe(stamp, view, self.is_mine(stamp))
+        self._kfs[stamp] = _Keyframe(stamp, view, self.is_mine(stamp), elsewhere=stamp in self._elsewhere)
         return True
+
+    def view(self, stamp_ns: int) -> MvsView | None:
+        """The view of keyframe ``stamp_ns``, None when unknown."""
+        kf = self._kfs.get(int(stamp_ns))
+        return None if kf is None else kf.view
 
     def refined(self) -> list[int]:
         """Stamps of this worker's keyframes refined at least once, oldest first."""
         return sorted(s for s, k in self._kfs.items() if k.mine and k.used)
 
     def unrefined(self) -> list[int]:
-        """Stamps of this worker's keyframes not refined (yet), oldest first."""
-        return sorted(s for s, k in self._kfs.items() if k.mine and not k.used)
+        """Stamps of this worker's keyframes not refined (yet, here or elsewhere), oldest first."""
+        return sorted(s for s, k in self._kfs.items() if k.mine and not k.used and not k.elsewhere)
 
     def pop_warnings(self) -> list[str]:
         """Warnings raised since the last call (each situation is reported once)."""
@@ -247,7 +280,7 @@ class RefineScheduler:
         poses = np.stack([k.view.t_wc for k in kfs])
         cams = [k.view.camera for k in kfs]
         for i, kf in enumerate(kfs):
-            if not kf.mine or (kf.used and not cfg.refine_again):
+            if not kf.mine or kf.elsewhere or (kf.used and not cfg.refine_again):
                 continue
             rng = self._range(kf, kfs[:i] + kfs[i + 1 :])
             nbrs = select_neighbours(i, poses, cams, depth_range=rng, **cfg.neighbour_options)

@@ -37,10 +37,12 @@ from typing import Literal
 
 import cv2
 import numpy as np
-import pycolmap
 from numpy.typing import NDArray
 
 from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.colmap import pycolmap as _import_pycolmap
+
+pycolmap = _import_pycolmap()
 
 __all__ = [
     'CameraModel',

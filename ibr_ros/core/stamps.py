@@ -5,12 +5,17 @@ stamp arrives while it is full, the oldest pending record is dropped, or the new
 it is older than everything pending; either way ``on_incomplete`` is called with a line naming the
 stamp and the missing fields (the nodes count it as rejected input, reason ``incomplete``). With
 ``supersede`` (in-order sensor streams) completing a record also drops every older pending one.
+With ``max_bytes`` the pending records are bounded in bytes too (numpy arrays in the values, also
+inside tuples): the oldest pending records are dropped to make room, and a single value larger than
+``max_bytes`` is rejected outright (``on_incomplete`` again).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from typing import Any
+
+import numpy as np
 
 __all__ = ['StampAssembler']
 
@@ -30,6 +35,7 @@ class StampAssembler:
         *,
         what: str = 'frame',
         supersede: bool = False,
+        max_bytes: int | None = None,
     ) -> None:
         if not fields or len(set(fields)) != len(fields):
             raise ValueError(f'fields must be distinct names, got {list(fields)}')
@@ -40,7 +46,10 @@ class StampAssembler:
         self.on_incomplete = on_incomplete
         self.what = what
         self.supersede = supersede
+        self.max_bytes = max_bytes
         self._pending: dict[int, dict[str, Any]] = {}
+        self._bytes: dict[int, int] = {}  # stamp -> bytes of its pending values
+        self.pending_bytes = 0
 
     def __len__(self) -> int:
         return len(self._pending)
@@ -54,7 +63,11 @@ class StampAssembler:
 
     def discard(self, stamp: int) -> None:
         """Forget the pending record of ``stamp`` (no ``on_incomplete``)."""
-        self._pending.pop(stamp, None)
+        self._pop(stamp)
+
+    def _pop(self, stamp: int) -> dict[str, Any]:
+        self.pending_bytes -= self._bytes.pop(stamp, 0)
+        return self._pending.pop(stamp, {})
 
     def _missing(self, record: dict[str, Any]) -> str:
         return ', '.join(f for f in self.fields if f not in record)
@@ -67,6 +80,13 @@ class StampAssembler:
         if field not in self.fields:
             raise ValueError(f'field must be one of {list(self.fields)}, got {field!r}')
         stamp = int(stamp)
+        size = _nbytes(value)
+        if self.max_bytes is not None and size > self.max_bytes:
+            self.on_incomplete(
+                f'{field} of {self.what} {stamp} ns rejected: {size / 2**20:.1f} MiB, more than all pending '
+                f'{self.what}s may hold ({self.max_bytes / 2**20:.1f} MiB)'
+            )
+            return None
         record = self._pending.get(stamp)
         if record is None:
             if len(self._pending) >= self.max_pending:
@@ -79,17 +99,35 @@ class StampAssembler:
                     return None
                 self.on_incomplete(
                     f'{self.what} at {oldest} ns dropped (max_pending {self.max_pending}) before its '
-                    f'{self._missing(self._pending.pop(oldest))} arrived'
+                    f'{self._missing(self._pop(oldest))} arrived'
                 )
             record = self._pending[stamp] = {}
+        old = _nbytes(record.get(field))
         record[field] = value
+        self._bytes[stamp] = self._bytes.get(stamp, 0) + size - old
+        self.pending_bytes += size - old
+        while self.max_bytes is not None and self.pending_bytes > self.max_bytes and len(self._pending) > 1:
+            oldest = min(s for s in self._pending if s != stamp)
+            self.on_incomplete(
+                f'{self.what} at {oldest} ns dropped (pending {self.what}s over {self.max_bytes / 2**20:.1f} '
+                f'MiB) before its {self._missing(self._pop(oldest))} arrived'
+            )
         if len(record) < len(self.fields):
             return None
-        del self._pending[stamp]
+        self._pop(stamp)
         if self.supersede:
             for old in sorted(s for s in self._pending if s < stamp):
                 self.on_incomplete(
                     f'{self.what} at {old} ns superseded by {stamp} ns before its '
-                    f'{self._missing(self._pending.pop(old))} arrived'
+                    f'{self._missing(self._pop(old))} arrived'
                 )
         return record
+
+
+def _nbytes(value: Any) -> int:
+    """Bytes of the numpy arrays in ``value`` (itself, or the items of a tuple or list)."""
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, (tuple, list)):
+        return sum(_nbytes(v) for v in value)
+    return 0

@@ -1,7 +1,10 @@
 """``ibr demo``: the main job on the default synthetic bag, through the real node graph over DDS.
 
 Starts bag_player, frame_subsampler, depth_refiner and view_renderer as separate processes (as
-``ibr graph`` does), replays the bag, waits until every keyframe has its refined depth, then sends
+``ibr graph`` does) in a DDS domain of their own (localhost only; :func:`ibr_ros.graph.claim_domain`),
+replays the bag, waits until the frame_subsampler's ``keyframes/status`` says it has seen every
+frame of the bag and the camera stream ended, and every keyframe it counted has its refined depth
+(nothing is decided on a timer), then sends
 novel-view queries along a path between the keyframes and writes into ``out``:
 ``novel_views/query_NN.png`` (ground truth | rendered), ``depth/keyframe_NN.png`` (image | refined
 depth | ground-truth depth), ``logs/<node>.log``, ``summary.json`` and ``summary.md`` (timings,
@@ -66,22 +69,36 @@ def run_demo(
     set depend on the machine's load.
     """
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, Image
 
+    from ibr_ros.bag import open_bag
+    from ibr_ros.core.live import FlightStatus
+    from ibr_ros.graph import camera_topics, claim_domain
+
     bag, out = Path(bag), Path(out)
     gt = GroundTruthRenderer(bag)  # raises UserError for bags without synth.json
+    with open_bag(bag) as reader:
+        n_frames = reader.topics[TOPICS['image']].count
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     topics = [TOPICS['image'], TOPICS['camera_info'], TOPICS['pose']]
     specs = [
         NodeSpec(
             'bag_player',
-            {'bag': str(bag.resolve()), 'rate': rate, 'topics': topics, 'wait_for_subscribers': 1},
+            {
+                'bag': str(bag.resolve()),
+                'rate': rate,
+                'topics': topics,
+                'wait_for_subscribers': 1,
+                'wait_timeout_s': 0.0,
+                'wait_topics': camera_topics(bag),
+            },
         ),
-        NodeSpec('frame_subsampler', {'compressed': True, 'scene_depth_m': 80.0}),
-        NodeSpec('depth_refiner', {'max_neighbours': 2, 'flush_after_s': 3.0}),
+        NodeSpec('frame_subsampler', {'scene_depth_m': 80.0}),
+        NodeSpec('depth_refiner', {'max_neighbours': 2}),
         NodeSpec('view_renderer', {}),
     ]
     latched = QoSProfile(
@@ -90,8 +107,12 @@ def run_demo(
     keyframes: dict[int, list] = {}
     depths: dict[int, tuple] = {}
     replies: dict[int, tuple] = {}
+    flight: list[FlightStatus] = []
+    domain, lock = claim_domain(1 + os.getpid() % 100)  # held until the graph is stopped
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    os.environ.update({k: env[k] for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')})
     rclpy.init()
-    graph = Graph(specs, env=dict(os.environ), log_dir=out / 'logs')
+    graph = Graph(specs, env=env, log_dir=out / 'logs')
     try:
         node = rclpy.create_node('ibr_demo')
 
@@ -110,7 +131,14 @@ def run_demo(
         def on_reply(m: Image) -> None:
             replies[stamp_of(m)] = (np.array(msg_utils.image_to_rgb(m)), time.monotonic())
 
+        def on_status(m: DiagnosticStatus) -> None:
+            try:
+                flight.append(FlightStatus.from_pairs(msg_utils.status_to_pairs(m)))
+            except ValueError as exc:
+                LOG.warning('keyframes/status: %s', exc)
+
         infos: dict[int, CameraInfo] = {}
+        node.create_subscription(DiagnosticStatus, 'keyframes/status', on_status, latched)
         node.create_subscription(Image, 'keyframes/image', on_image, latched)
         node.create_subscription(PoseStamped, 'keyframes/pose', on_pose, latched)
         node.create_subscription(Image, 'keyframes/depth', on_depth, latched)
@@ -120,9 +148,12 @@ def run_demo(
         node.create_subscription(Image, 'novel_view/image', on_reply, 10)
         query_pub = node.create_publisher(PoseStamped, 'novel_view/query', 10)
         graph.start()
-        print(f'ibr demo: graph started ({", ".join(graph.procs)}); replaying {bag}', flush=True)
+        print(
+            f'ibr demo: graph started ({", ".join(graph.procs)}) in ROS_DOMAIN_ID {domain}; replaying {bag}',
+            flush=True,
+        )
         deadline = t0 + timeout_s
-        last_change, last_count = time.monotonic(), -1
+        last_count = -1
         while time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
             status = graph.poll()
@@ -131,10 +162,11 @@ def run_demo(
                 raise UserError(f'node(s) failed: {failed}; see {out / "logs"}')
             count = len(depths)
             if count != last_count:
-                last_change, last_count = time.monotonic(), count
+                last_count = count
                 print(f'ibr demo: {len(keyframes)} keyframes, {count} refined', flush=True)
-            done = status.get('bag_player') == 0 and keyframes and count >= len(keyframes)
-            if done and time.monotonic() - last_change > 2.0:
+            s = flight[-1] if flight else None
+            seen_all = s is not None and s.camera == 'ended' and s.frames >= n_frames
+            if seen_all and s.keyframes == len(keyframes) and count >= s.keyframes:
                 break
         else:
             raise UserError(f'timed out after {timeout_s:.0f} s with {len(depths)}/{len(keyframes)} depths')
@@ -164,6 +196,7 @@ def run_demo(
     finally:
         graph.stop()
         rclpy.try_shutdown()
+        lock.close()
 
     depth_rows = []
     for i, s in enumerate(stamps):

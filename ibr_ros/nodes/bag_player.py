@@ -29,7 +29,10 @@ more than 3 bytes after the message.
 Messages are paced on the wall clock: bag time since ``start_offset``, divided by ``rate``
 (0 = as fast as possible). ``/clock`` (``rosgraph_msgs/Clock``) carries the playback's bag time at
 ``clock_rate_hz``, never ahead of the next message, so nodes can run with ``use_sim_time``. With
-``wait_for_subscribers`` > 0 playback starts once every topic has that many matched subscriptions.
+``wait_for_subscribers`` > 0 playback starts once every topic of ``wait_topics`` (published names;
+empty = every played topic) has that many matched subscriptions (``wait_timeout_s`` 0: however long
+that takes). Publishers of image topics are created last, so a subscriber that discovers this
+player's image publisher already knows its other topics (DDS announces endpoints in order).
 DDS repairs what a reliable subscriber missed (within a heartbeat period, 3 s with Fast DDS) as long
 as the publisher still holds it: at rate > 0 ``qos_depth`` should cover a few seconds of each topic;
 at rate 0 the player waits for acknowledgements before it would overwrite an unacknowledged message,
@@ -224,6 +227,7 @@ class BagPlayer(Node):
         n_subs = p('wait_for_subscribers', 0, 'start at this many subscriptions per topic', limits=(0, 1000))
         self.wait_for = int(n_subs)
         self.wait_timeout = float(p('wait_timeout_s', 30.0, '... or after this long; 0 = never', **big))
+        wait_topics = p('wait_topics', Parameter.Type.STRING_ARRAY, 'topics to wait for; empty = all')
         self.depth = int(p('qos_depth', 100, 'history depth of the volatile publishers', limits=(1, 1000000)))
         use_recorded = bool(p('use_recorded_qos', True, 'offer the QoS recorded in the bag'))
         max_durable = int(p('max_durable_depth', 1000, 'most transient-local history', limits=(1, 1000000)))
@@ -251,7 +255,8 @@ class BagPlayer(Node):
         self.outs: dict[str, _Out] = {}
         self.bad = BadInput(self)
         qos_log = []
-        for topic in wanted:
+        is_image = lambda t: available[t].msgtype.endswith(('/Image', '/CompressedImage'))  # noqa: E731
+        for topic in sorted(wanted, key=is_image):  # images last (stable: bag order otherwise)
             info = available[topic]
             problem = self._unplayable(info.msgtype, info.serialization_format)
             if problem:
@@ -270,8 +275,20 @@ class BagPlayer(Node):
             publisher = self.create_publisher(cls, name, qos.profile())
             durable = qos.durability == 'transient_local'
             self.outs[topic] = _Out(name, publisher, decoder(info.msgtype, cls), qos.depth, durable)
+        self.outs = {t: self.outs[t] for t in wanted if t in self.outs}  # bag order again
+        qos_log = [line for t in wanted for line in qos_log if line.startswith(f'{t}: ')]
         if not self.outs:
             raise UserError(f'{self.bag_path}: none of the topics can be played')
+        names = {o.name: o for o in self.outs.values()}
+        self.wait_outs = list(self.outs.values())
+        if wait_topics:
+            resolved = {self.resolve_topic_name(t): t for t in wait_topics}
+            known = {self.resolve_topic_name(n): o for n, o in names.items()}
+            if missing := [t for r, t in resolved.items() if r not in known]:
+                raise UserError(
+                    f'parameter wait_topics: {", ".join(missing)} not played (played: {", ".join(names)})'
+                )
+            self.wait_outs = [known[r] for r in resolved]
         self.clock_pub = (
             self.create_publisher(Clock, '/clock', reliable_qos(10)) if self.publish_clock else None
         )
@@ -360,9 +377,7 @@ class BagPlayer(Node):
         self.get_logger().info(f'waiting for {self.wait_for} subscription(s) on every topic')
         deadline = time.monotonic() + self.wait_timeout if self.wait_timeout > 0 else float('inf')
         while not self.stopping.is_set():
-            short = [
-                o.name for o in self.outs.values() if o.publisher.get_subscription_count() < self.wait_for
-            ]
+            short = [o.name for o in self.wait_outs if o.publisher.get_subscription_count() < self.wait_for]
             if not short:
                 return
             if time.monotonic() > deadline:

@@ -16,6 +16,7 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -26,6 +27,7 @@ from rclpy.qos import (
     QoSReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 import msg_utils
 from ibr_ros.core.camera import CameraError
@@ -39,6 +41,8 @@ __all__ = [
     'BadInput',
     'StampAssembler',
     'declare',
+    'input_qos',
+    'latched_qos',
     'model_qos',
     'reliable_qos',
     'run_node',
@@ -71,6 +75,25 @@ def model_qos(depth: int = 1000) -> QoSProfile:
         reliability=QoSReliabilityPolicy.RELIABLE,
         durability=QoSDurabilityPolicy.TRANSIENT_LOCAL,
     )
+
+
+def latched_qos() -> QoSProfile:
+    """A status topic: reliable + transient local, the latest message only (a late joiner gets it)."""
+    return model_qos(1)
+
+
+def input_qos(publishers: Sequence[TopicEndpointInfo]) -> tuple[QoSProfile, str]:
+    """The QoS to subscribe a stream with, given its ``publishers``, and a note for the log.
+
+    Reliable and keep-all when every publisher offers reliable (a bag replay: nothing is lost, DDS
+    flow control holds the publisher back instead); else sensor-data best effort (a camera driver).
+    """
+    if publishers and all(p.qos_profile.reliability == QoSReliabilityPolicy.RELIABLE for p in publishers):
+        qos = QoSProfile(
+            history=QoSHistoryPolicy.KEEP_ALL, depth=1, reliability=QoSReliabilityPolicy.RELIABLE
+        )
+        return qos, 'reliable keep-all: its publishers offer reliable'
+    return sensor_qos(), 'best effort: a publisher offers best effort; lost messages are counted'
 
 
 def reliable_qos(depth: int = 10) -> QoSProfile:
@@ -135,7 +158,8 @@ def subscribe_field(
     """Subscribe ``topic``; each message goes through ``convert`` and on to ``put(stamp_ns, field, value)``.
 
     A message that ``convert`` rejects (:data:`BAD_MESSAGE`) is counted and logged by ``bad`` under
-    the reason ``field`` and dropped.
+    the reason ``field`` and dropped; so are messages DDS reports lost (reason ``lost``, best-effort
+    inputs) and publishers whose QoS cannot match (reason ``incompatible_qos``).
     """
 
     def callback(msg: Any) -> None:
@@ -146,7 +170,17 @@ def subscribe_field(
             return
         put(msg_utils.stamp_to_ns(msg.header.stamp), field, value)
 
-    return node.create_subscription(msg_type, topic, callback, qos)
+    def lost(status: Any) -> None:
+        for _ in range(int(status.total_count_change)):
+            bad('lost', f'{topic}: {status.total_count} messages lost by DDS so far (best effort, too slow)')
+
+    events = SubscriptionEventCallbacks(
+        message_lost=lost,
+        incompatible_qos=lambda s: bad(
+            'incompatible_qos', f'{topic}: a publisher offers an incompatible QoS'
+        ),
+    )
+    return node.create_subscription(msg_type, topic, callback, qos, event_callbacks=events)
 
 
 def spin_forever(node: Node) -> int:

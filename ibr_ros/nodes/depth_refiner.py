@@ -4,9 +4,14 @@ Subscribes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image
 ``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), matched by
 identical header stamps.
 
+Also subscribes ``keyframes/status`` (``diagnostic_msgs/DiagnosticStatus``, latched; the
+frame_subsampler's :class:`~ibr_ros.core.live.FlightStatus`): whether the flight has poses (SfM mode
+below) and whether the camera stream ended.
+
 A keyframe is refined once :func:`~ibr_ros.core.mvs.select_neighbours` finds ``min_neighbours``
-source views for it among the keyframes received so far, or, with at least one neighbour, when
-``flush_after_s`` passed without a new keyframe (the end of a flight). With ``refine_again`` it is
+source views for it among the keyframes received so far, or, with at least one neighbour, once the
+status says the camera stream ended (the end of a flight; or, with ``flush_after_s`` > 0, when that
+long passed without a new keyframe). With ``refine_again`` it is
 refined again whenever more neighbours (up to ``max_neighbours``) become available. This policy is
 :class:`~ibr_ros.core.schedule.RefineScheduler`, shared with ``ibr process``. Refinement:
 :func:`~ibr_ros.core.mvs.compute_depth_maps` on the keyframe and its neighbours, then
@@ -31,7 +36,10 @@ model's sky head) or ``'none'``. A bad value (unknown name or preset, missing or
 stops the node at start-up with one error line naming the parameter and value (exit status 2).
 
 Publishes (reliable, transient local): ``keyframes/depth`` (``sensor_msgs/Image`` ``32FC1``
-metres, REP-118: NaN unknown) and ``keyframes/depth/camera_info``, both with the keyframe's stamp.
+metres, REP-118: NaN unknown) and ``keyframes/depth/camera_info``, both with the keyframe's stamp,
+and, with ``mirror_model`` (default), the keyframe's ``keyframes/image``, ``keyframes/camera_info``
+and ``keyframes/pose`` too: the model then outlives the frame_subsampler (a renderer restarted after
+it died still gets everything). Depth published by another refiner is mirrored the same way, once.
 With ``publish_debug`` (reliable, volatile): ``depth/mvs``, ``depth/mono_remapped`` (``32FC1``),
 ``depth/sky_mask`` (``mono8``, 255 = sky), ``depth/preview`` and ``depth/mvs/preview`` (``rgb8``
 turbo-coloured inverse depth).
@@ -39,26 +47,31 @@ turbo-coloured inverse depth).
 Sharding: with ``num_workers`` > 1 every process receives all keyframes (they are everybody's
 neighbours) but refines only those whose stamp hashes to its ``worker_index``
 (:func:`~ibr_ros.core.schedule.shard_of`, independent of arrival order), so each keyframe is
-refined exactly once.
+refined once. Workers publish a heartbeat on ``refiners/heartbeat`` (``DiagnosticStatus``, every
+``worker_lease_s`` / 3 s); a worker not heard from for ``worker_lease_s`` is dead and its
+unrefined keyframes go to the live ones (:class:`~ibr_ros.core.live.ShardMembership`). Every worker
+subscribes ``keyframes/depth``: a keyframe whose depth is already published (by a live worker, or
+mirrored from a dead one) is never refined again, so a restarted worker picks up where it stopped.
 
-SfM mode (keyframes without poses): with ``sfm_mode`` ``'always'``, or ``'auto'`` once
-``sfm_min_keyframes`` keyframes (image + camera_info) have waited ``sfm_pose_wait_s`` for a pose
-while no pose was ever received, keyframes are registered by :class:`~ibr_ros.core.sfm_session.SfmSession`
-(pycolmap on the CPU, the CameraInfo intrinsics as the prior, images downscaled to ``sfm_max_side``)
-instead of waiting for ``keyframes/pose``, which is then ignored (it carries this node's own
-poses). The first registration runs once ``sfm_min_keyframes`` keyframes are there, the next ones
-after every ``sfm_every`` new keyframes and when ``flush_after_s`` passed without a new one. Each
-newly registered keyframe's pose is published once on ``keyframes/pose`` (frame_id ``sfm``, stamp =
-the keyframe's; later registrations are aligned to the earlier ones, so the published poses keep
-one frame) and the keyframe is then refined like a posed one. The ``sfm`` frame: z up (the ground
-plane of the sparse points), origin on the ground below the first registered keyframe, x its
-viewing direction; unit: the distance between the first two registered keyframes, or metres with
-``sfm_scale`` (``'baseline'``: that distance, ``'altitude'``: the first keyframe's height above the
-ground, ``'depth'``: the median depth of the sparse points) = ``sfm_scale_m``. Depth maps are in the
-same unit; without a scale, ``depth_range`` and ``scene_depth_m`` (metres) are ignored. SfM runs
-on the worker thread; with ``num_workers`` > 1, ``'always'`` is a start-up error (one
-registration per graph) and ``'auto'`` acts as ``'off'``. With ``'off'`` frames without a pose are
-not refined.
+SfM mode (keyframes without poses): with ``sfm_mode`` ``'always'``, or ``'auto'`` once the
+frame_subsampler's status says the flight has no poses (never on a timer: until the status comes,
+keyframes wait for their poses, however late), keyframes are registered by
+:class:`~ibr_ros.core.sfm_session.SfmSession` (pycolmap on the CPU, the CameraInfo intrinsics as the
+prior, images downscaled to ``sfm_max_side``) instead of waiting for ``keyframes/pose``, which is
+then ignored (it carries this node's own poses). The first registration runs once
+``sfm_min_keyframes`` keyframes are there, the next ones after every ``sfm_every`` new keyframes and
+when the flight is flushed (see above). Each newly registered keyframe's pose is published once on
+``keyframes/pose`` (frame_id ``sfm``, stamp = the keyframe's; later registrations are aligned to the
+earlier ones, so the published poses keep one frame) and the keyframe is then refined like a posed
+one. The ``sfm`` frame: z up (the ground plane of the sparse points), origin on the ground below the
+first registered keyframe, x its viewing direction; unit: the distance between the first two
+registered keyframes, or metres with ``sfm_scale`` (``'baseline'``: that distance, ``'altitude'``:
+the first keyframe's height above the ground, ``'depth'``: the median depth of the sparse points) =
+``sfm_scale_m``. Depth maps are in the same unit; without a scale, ``depth_range`` and
+``scene_depth_m`` (metres) are ignored. SfM runs on the worker thread; with ``num_workers`` > 1,
+``'always'`` is a start-up error (one registration per graph) and ``'auto'`` acts as ``'off'``. With
+``'off'`` frames without a pose are not refined. Registration runs again when the camera stream
+ended.
 
 The heavy work runs on one worker thread; the executor thread only stores messages.
 """
@@ -70,15 +83,18 @@ import sys
 import threading
 import time
 from dataclasses import replace
+from functools import partial
 
 import cv2
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.live import FlightStatus, ShardMembership
 from ibr_ros.core.mono import MonoModelError
 from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.refine import DepthRefiner, RefineError
@@ -92,6 +108,7 @@ from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
     declare,
+    latched_qos,
     model_qos,
     reliable_qos,
     run_node,
@@ -130,9 +147,14 @@ class DepthRefinerNode(Node):
         min_neighbours = int(p('min_neighbours', 2, 'neighbours needed to refine', limits=(1, 16)))
         max_nb = int(p('max_neighbours', 4, 'MVS source views per keyframe', limits=(1, 16)))
         self.flush_after_s = float(
-            p('flush_after_s', 5.0, 'refine with fewer neighbours after this quiet time (s), 0 = never',
+            p('flush_after_s', 0.0, 'also flush after this long without keyframes (s), 0 = at the end only',
               limits=(0.0, 1e6))
         )  # fmt: skip
+        lease = float(p('worker_lease_s', 3.0, 'a sharded worker silent this long is dead (s)',
+                        limits=(0.1, 1e6)))  # fmt: skip
+        self.mirror = bool(
+            p('mirror_model', True, 'republish the keyframes that have depth (model survives)')
+        )
         refine_again = bool(p('refine_again', False, 'refine again when more neighbours arrive'))
         rng = p('depth_range', [0.0, 0.0], 'MVS [near, far] in metres; [0, 0] = automatic')
         scene_depth = float(p('scene_depth_m', 0.0, 'scene depth hint (m), 0 = estimate', limits=(0.0, 1e6)))
@@ -142,6 +164,7 @@ class DepthRefinerNode(Node):
         self.max_pending = int(
             p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
         )
+        max_mb = float(p('max_pending_mb', 128.0, 'MiB of pending frames at most', limits=(1.0, 1e6)))
         mono = str(p('mono', 'plane', "monocular depth: 'plane' (ground-plane prior) or 'onnx' (mono_model)"))
         mono_model = str(
             p('mono_model', 'ibr_mono', "'ibr_mono' (shipped), a fetched model or an .onnx path")
@@ -154,9 +177,6 @@ class DepthRefinerNode(Node):
         )
         self.sfm_mode = str(
             p('sfm_mode', 'auto', "register keyframes without poses: 'auto', 'always' or 'off'")
-        )
-        self.sfm_pose_wait_s = float(
-            p('sfm_pose_wait_s', 2.0, "'auto': wait this long for a pose (s)", limits=(0.0, 1e6))
         )
         self.sfm_min_keyframes = int(
             p('sfm_min_keyframes', 4, 'keyframes of the first SfM registration', limits=(3, 10000))
@@ -189,7 +209,6 @@ class DepthRefinerNode(Node):
         self.sfm_times: list[float] = []
         self._sfm_queue: list[int] = []  # stamps of keyframes waiting for SfmSession.add()
         self._sfm_views: dict[int, tuple[np.ndarray, PinholeCamera, str]] = {}  # image, camera, frame_id
-        self._waiting: dict[int, float] = {}  # 'auto': stamp -> arrival time of image or camera_info
         self.mvs = MvsOptions(max_neighbours=max_nb)
         self.schedule = RefineScheduler(
             ScheduleConfig(
@@ -211,8 +230,10 @@ class DepthRefinerNode(Node):
             self.max_pending,
             lambda detail: self.bad('incomplete', detail),
             what='keyframe',
+            max_bytes=round(max_mb * 2**20),
         )
         self.frame_ids: dict[int, str] = {}  # header frame_id of each scheduled keyframe
+        self.pose_frames: dict[int, str] = {}  # frame_id of each keyframe's pose (posed flights)
         self.refine_times: list[float] = []
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -221,6 +242,12 @@ class DepthRefinerNode(Node):
         self._last_arrival = time.monotonic()
         self._poseless: set[int] = set()  # frames with image and camera_info before any pose was seen
         self.poses_seen = 0
+        self.flight: FlightStatus | None = None  # the frame_subsampler's latest status
+        self._ended = False  # the camera stream ended: flush
+        self._published: set[int] = set()  # stamps whose depth this process published (own or mirrored)
+        self._others: dict[int, dict[str, object]] = {}  # depth messages of other workers, by stamp
+        self.members = ShardMembership(self.num_workers, self.worker_index, lease, time.monotonic())
+        self._live = self.members.live(time.monotonic())
         qos = model_qos()
         for msg_type, field, convert in (
             (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),  # a copy, detached from m
@@ -229,7 +256,11 @@ class DepthRefinerNode(Node):
                 'camera_info',
                 lambda m: (m.header.frame_id or 'camera_optical', msg_utils.camera_info_to_pinhole(m)),
             ),
-            (PoseStamped, 'pose', msg_utils.pose_stamped_to_matrix),
+            (
+                PoseStamped,
+                'pose',
+                lambda m: (msg_utils.pose_stamped_to_matrix(m), m.header.frame_id or 'map'),
+            ),
         ):
             if field == 'pose' and self.sfm_mode == 'always':
                 continue  # keyframes/pose carries this node's own poses
@@ -239,11 +270,27 @@ class DepthRefinerNode(Node):
         )
         self.pub_depth = self.create_publisher(Image, 'keyframes/depth', qos)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/depth/camera_info', qos)
+        self.pub_kf = (
+            {
+                'image': self.create_publisher(Image, 'keyframes/image', qos),
+                'camera_info': self.create_publisher(CameraInfo, 'keyframes/camera_info', qos),
+                'pose': self.pub_pose or self.create_publisher(PoseStamped, 'keyframes/pose', qos),
+            }
+            if self.mirror
+            else {}
+        )
+        self.create_subscription(DiagnosticStatus, 'keyframes/status', self._on_status, latched_qos())
+        for msg_type, topic in ((Image, 'keyframes/depth'), (CameraInfo, 'keyframes/depth/camera_info')):
+            self.create_subscription(msg_type, topic, partial(self._on_depth, topic), qos)
+        if self.num_workers > 1:
+            self.pub_beat = self.create_publisher(DiagnosticStatus, 'refiners/heartbeat', reliable_qos())
+            self.create_subscription(
+                DiagnosticStatus, 'refiners/heartbeat', self._on_heartbeat, reliable_qos()
+            )
+            self.create_timer(lease / 3, self._beat)
         self.debug = {
             n: self.create_publisher(Image, n, reliable_qos()) for n in DEBUG_TOPICS if self.publish_debug
         }
-        if self.sfm_mode == 'auto':
-            self.create_timer(0.25, self._maybe_start_sfm)
         self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -273,11 +320,13 @@ class DepthRefinerNode(Node):
 
     # -- input ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
+        with self._lock:
+            if stamp in self.schedule or stamp in self._sfm_views:
+                return  # a keyframe already here, again (a mirror's copy, a late duplicate)
         if field == 'pose':
             if self.sfm_active:
                 return  # this node's own poses (or another source's, which SfM mode ignores)
             self.poses_seen += 1
-            self._waiting.clear()
         if (f := self.frames.put(stamp, field, value)) is None:
             partial = self.frames.partial(stamp)
             if 'image' in partial and 'camera_info' in partial and not self.poses_seen:
@@ -285,23 +334,21 @@ class DepthRefinerNode(Node):
                     self.frames.discard(stamp)
                     self._add_poseless(stamp, partial['image'], *partial['camera_info'])
                     return
-                if self.sfm_mode == 'auto':
-                    self._waiting.setdefault(stamp, time.monotonic())
                 if stamp in self._poseless:
                     return
                 self._poseless.add(stamp)
                 if len(self._poseless) == 3:
-                    self.get_logger().warning(
-                        'keyframes arrive without keyframes/pose: '
+                    self.get_logger().info(
+                        'keyframes arrive before their keyframes/pose: '
                         + (
                             'frames without poses are not refined (sfm_mode off)'
                             if self.sfm_mode == 'off'
-                            else f'SfM mode starts once {self.sfm_min_keyframes} of them waited '
-                            f'{self.sfm_pose_wait_s:g} s'
+                            else 'waiting for their poses (SfM mode starts only when keyframes/status '
+                            'says the flight has no poses)'
                         )
                     )
             return
-        image, (frame_id, camera), pose = f['image'], f['camera_info'], f['pose']
+        image, (frame_id, camera), (pose, pose_frame) = f['image'], f['camera_info'], f['pose']
         if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
             self.bad('camera_info', mismatch)
             return
@@ -310,8 +357,10 @@ class DepthRefinerNode(Node):
                 self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
                 return
             self.frame_ids[stamp] = frame_id
+            self.pose_frames[stamp] = pose_frame
             self._version += 1
             self._last_arrival = time.monotonic()
+        self._mirror(stamp)  # another worker's depth may have come first
         self._wake.set()
 
     # -- SfM mode -------------------------------------------------------------------------------
@@ -329,27 +378,139 @@ class DepthRefinerNode(Node):
             self._last_arrival = time.monotonic()
         self._wake.set()
 
-    def _maybe_start_sfm(self) -> None:
-        """'auto': SfM mode once enough keyframes waited ``sfm_pose_wait_s`` without any pose (timer)."""
-        if self.sfm_active or self.sfm_mode != 'auto' or self.poses_seen or not self._waiting:
+    # -- what the graph states --------------------------------------------------------------------
+    def _on_status(self, msg: DiagnosticStatus) -> None:
+        """The frame_subsampler's flight status: SfM mode when it has no poses; flush when it ended."""
+        try:
+            status = FlightStatus.from_pairs(msg_utils.status_to_pairs(msg))
+        except (msg_utils.MessageError, ValueError) as exc:
+            self.bad('status', f'keyframes/status from {msg.name!r}: {exc}')
             return
-        now = time.monotonic()
-        waiting = [
-            s for s in sorted(self._waiting) if {'image', 'camera_info'} <= set(self.frames.partial(s))
-        ]
-        waited = sum(now - self._waiting[s] >= self.sfm_pose_wait_s for s in waiting)
-        if waited < self.sfm_min_keyframes:  # each of them waited, not just the oldest
-            return
+        self.flight = status
+        if status.pose_source == 'none' and self.sfm_mode == 'auto' and not self.sfm_active:
+            if self.poses_seen:
+                self.get_logger().warning(
+                    'keyframes/status says the flight has no poses, but poses arrived: staying with them'
+                )
+            else:
+                self._start_sfm()
+        elif status.pose_source == 'pose' and self.sfm_active and self.sfm_mode == 'auto':
+            self.get_logger().warning(
+                'keyframes/status says poses arrive now: this flight stays in SfM mode (its frame is fixed)',
+                once=True,
+            )
+        ended = status.camera == 'ended'
+        if ended != self._ended:
+            self._ended = ended
+            if ended:
+                self.get_logger().info(
+                    f'the camera stream ended after {status.keyframes} keyframes: refining what is left'
+                )
+            self._wake.set()
+
+    def _start_sfm(self) -> None:
+        """'auto' and a flight without poses: register the keyframes here (waiting ones first)."""
         self.sfm_active = True
         self.get_logger().warning(
-            f'no keyframes/pose for {len(waiting)} keyframes within {self.sfm_pose_wait_s:g} s: SfM mode, '
-            'keyframes are registered here and their poses published on keyframes/pose'
+            'keyframes/status: the flight has no poses: SfM mode, keyframes are registered here and '
+            'their poses published on keyframes/pose'
         )
-        for stamp in waiting:
+        for stamp in sorted(self._poseless):
             partial = self.frames.partial(stamp)
-            self.frames.discard(stamp)
-            self._add_poseless(stamp, partial['image'], *partial['camera_info'])
-        self._waiting.clear()
+            if 'image' in partial and 'camera_info' in partial:
+                self.frames.discard(stamp)
+                self._add_poseless(stamp, partial['image'], *partial['camera_info'])
+
+    def _on_depth(self, topic: str, msg: Image | CameraInfo) -> None:
+        """Depth (or its camera_info) on keyframes/depth: another worker's is noted and mirrored once."""
+        stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        with self._lock:
+            if stamp in self._published:
+                return  # this process's own (or already mirrored)
+        rec = self._others.setdefault(stamp, {})
+        if topic == 'keyframes/depth':
+            try:
+                depth = msg_utils.depth_image_to_m(msg)
+            except BAD_MESSAGE as exc:
+                self.bad('depth', f'keyframes/depth at {stamp} ns: {exc}')
+                return
+            if not (np.isfinite(depth) & (depth > 0)).any():
+                self.bad('depth', f'keyframes/depth at {stamp} ns has no known value: ignored')
+                return
+            with self._lock:
+                self.schedule.published_elsewhere(stamp)
+        rec[topic] = msg
+        if len(rec) == 2:
+            self._mirror(stamp)
+
+    def _mirror(self, stamp: int) -> None:
+        """Republish another worker's depth (and its keyframe) once both and the keyframe are here."""
+        with self._lock:
+            view = self.schedule.view(stamp)
+            rec = self._others.get(stamp, {})
+            if view is None or len(rec) < 2 or stamp in self._published:
+                return
+            self._published.add(stamp)
+            del self._others[stamp]
+        self.pub_depth.publish(rec['keyframes/depth'])
+        self.pub_info.publish(rec['keyframes/depth/camera_info'])
+        self._publish_keyframe(stamp, view)
+
+    def _publish_keyframe(self, stamp: int, view: MvsView) -> None:
+        """With ``mirror_model``: the keyframe's image, camera_info and (posed flights) pose, once."""
+        if not self.pub_kf:
+            return
+        header = msg_utils.make_header(stamp, self.frame_ids.get(stamp, 'camera_optical'))
+        self.pub_kf['image'].publish(msg_utils.numpy_to_image(view.rgb, 'rgb8', header))
+        self.pub_kf['camera_info'].publish(msg_utils.pinhole_to_camera_info(view.camera, header))
+        if not self.sfm_active:  # SfM poses went out when they were registered
+            frame = self.pose_frames.get(stamp, 'map')
+            self.pub_kf['pose'].publish(
+                msg_utils.matrix_to_pose_stamped(view.t_wc, stamp_ns=stamp, frame_id=frame)
+            )
+
+    def _beat(self) -> None:
+        """Heartbeat of this worker; takes over the keyframes of workers that went silent."""
+        self.pub_beat.publish(
+            msg_utils.pairs_to_status(
+                self.get_fully_qualified_name(),
+                [('worker_index', str(self.worker_index)), ('num_workers', str(self.num_workers))],
+            )
+        )
+        self._check_members()
+
+    def _on_heartbeat(self, msg: DiagnosticStatus) -> None:
+        values = dict(msg_utils.status_to_pairs(msg))
+        try:
+            worker, n = int(values['worker_index']), int(values['num_workers'])
+        except (KeyError, ValueError):
+            self.bad('heartbeat', f'refiners/heartbeat from {msg.name!r} without worker_index/num_workers')
+            return
+        if n != self.num_workers:
+            self.bad(
+                'heartbeat',
+                f'refiners/heartbeat from {msg.name!r}: num_workers {n}, this one {self.num_workers}',
+            )
+            return
+        self.members.heard(worker, time.monotonic())
+        self._check_members()
+
+    def _check_members(self) -> None:
+        live = self.members.live(time.monotonic())
+        if live == self._live:
+            return
+        gone, back = sorted(set(self._live) - set(live)), sorted(set(live) - set(self._live))
+        self._live = live
+        with self._lock:
+            gained = self.schedule.reassign(lambda s: self.members.owner(s, live) == self.worker_index)
+            self._version += 1
+        self.get_logger().warning(
+            f'refiner workers alive: {list(live)}'
+            + (f'; gone: {gone}' if gone else '')
+            + (f'; back: {back}' if back else '')
+            + f'; this worker takes over {len(gained)} keyframes'
+        )
+        self._wake.set()
 
     def _sfm_due(self, flush: bool) -> bool:
         """Whether the worker should register now (called with the lock held)."""
@@ -409,7 +570,7 @@ class DepthRefinerNode(Node):
             self._wake.wait(timeout=0.25)
             self._wake.clear()
             with self._lock:
-                flush_due = (
+                flush_due = self._ended or (
                     self.flush_after_s > 0 and time.monotonic() - self._last_arrival >= self.flush_after_s
                 )
                 sfm_due = self._sfm_due(flush_due)
@@ -431,11 +592,15 @@ class DepthRefinerNode(Node):
                     job = None
                 for warning in self.schedule.pop_warnings():
                     self.get_logger().warning(warning)
+                idle = job is None and self._ended
                 if job is None:
                     seen = version
-                    if flush_due:  # nothing left to do until new keyframes arrive
+                    if flush_due and not self._ended:  # nothing left to do until new keyframes arrive
                         self._last_arrival = math.inf
-                    continue
+            if idle:
+                self._wake.wait()  # until something changes (a keyframe, a status, a stop)
+            if job is None:
+                continue
             try:
                 ok = self._refine(job)
             except Exception as exc:  # the worker survives any one keyframe
@@ -462,10 +627,19 @@ class DepthRefinerNode(Node):
         t2 = time.perf_counter()
         if self._stop.is_set():
             return False
+        if not (np.isfinite(r.depth) & (r.depth > 0)).any():
+            self.bad('refine', f'keyframe {job.stamp} ns ({n} neighbours): no pixel has a known depth')
+            return False
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
+        with self._lock:
+            first = job.stamp not in self._published
+            self._published.add(job.stamp)
+            self._others.pop(job.stamp, None)
         self.pub_depth.publish(msg_utils.depth_m_to_image(r.depth, header))
         info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
+        if first:
+            self._publish_keyframe(job.stamp, job.view)
         if self.debug:
             out = {
                 'depth/mvs': msg_utils.depth_m_to_image(r.mvs, header),

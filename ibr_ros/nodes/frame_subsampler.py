@@ -1,14 +1,20 @@
 """``frame_subsampler``: picks sharp, well-spaced keyframes from a camera stream.
 
-Subscribes (sensor-data QoS unless noted): ``camera/image_raw`` (``sensor_msgs/Image``) or, with
-``compressed:=true``, ``camera/image_raw/compressed`` (``sensor_msgs/CompressedImage``);
-``camera/camera_info`` (``sensor_msgs/CameraInfo``); ``camera/pose`` (``geometry_msgs/PoseStamped``
-in ``map``, or ``nav_msgs/Odometry`` with ``pose_type:=odometry``). Messages of one frame are
-matched by identical header stamps.
+Subscribes, once the topic has a publisher, with the reliability its publishers offer (reliable and
+keep-all when all of them offer reliable, e.g. ``bag_player``, so a replay at any rate loses nothing;
+else best effort, REP-2003 sensor data, each lost message counted): ``camera/image_raw``
+(``sensor_msgs/Image``) or ``camera/image_raw/compressed`` (``sensor_msgs/CompressedImage``),
+``image_transport`` ``auto`` (default: whichever has a publisher, raw when both), ``raw`` or
+``compressed``; ``camera/camera_info`` (``sensor_msgs/CameraInfo``); ``camera/pose``
+(``geometry_msgs/PoseStamped`` in ``map``, or ``nav_msgs/Odometry`` with ``pose_type:=odometry``).
+Messages of one frame are matched by identical header stamps.
 
 Publishes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image`` rgb8),
 ``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), all three with the
-frame's header stamp. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector`: a sharp frame
+frame's header stamp; ``keyframes/status`` (``diagnostic_msgs/DiagnosticStatus``, depth 1, on every
+change; :class:`~ibr_ros.core.live.FlightStatus`): the flight's pose source (``pose`` / ``none``),
+the camera stream (``waiting`` / ``streaming`` / ``ended``: every camera publisher gone), frames
+and keyframes so far. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector`: a sharp frame
 becomes a keyframe when the camera moved ``baseline_ratio`` x ``scene_depth_m`` (``min_baseline_m``
 when ``scene_depth_m`` is 0) from the last keyframe, turned ``max_rotation_deg`` or after
 ``max_interval_s``.
@@ -17,31 +23,27 @@ Target count (``target_keyframes`` > 0): live, the flight's length is unknown, s
 ``expected_path_m``, the planned flight path length in metres (it refuses to start without it), and
 uses ONE baseline threshold of ``expected_path_m / target_keyframes`` metres (:func:`target_baseline`)
 in place of ``baseline_ratio`` x ``scene_depth_m`` and ``min_baseline_m``; the rotation, interval and
-blur rules are unchanged. On a flight of that path length the baseline rule then gives about
-``target_keyframes`` keyframes (the first frame, then one per threshold of straight-line distance;
-at most ``target_keyframes`` + 1): fewer on a shorter flight or a tightly curved path (the chord is
-shorter than the path), more on a longer one or where ``max_rotation_deg`` or ``max_interval_s``
-trigger. ``ibr process`` knows the whole flight and meets the target by bisection instead
-(:func:`ibr_ros.core.keyframes.select_keyframes`; ``expected_path_m`` is not used there).
+blur rules are unchanged. ``ibr process`` knows the whole flight and meets the target by bisection
+instead (:func:`ibr_ros.core.keyframes.select_keyframes`; ``expected_path_m`` is not used there).
 
-Without poses: when no pose has ever arrived and a frame's image and camera_info waited
-``pose_timeout_s`` (wall clock) for its pose, the node selects keyframes without poses from then
-on: the sharpest unblurred frame of every ``poseless_interval_s`` window of stamps
-(:class:`ibr_ros.core.keyframes.IntervalSelector`; a window's keyframe is published when the
-next window starts, or after ``poseless_interval_s`` without frames), published on
-``keyframes/image`` and ``keyframes/camera_info`` only; the depth_refiner registers them (its SfM
-mode). Choose the interval so that consecutive keyframes overlap well (SfM needs it). The first
-pose that arrives switches back to pose-based selection for good. ``pose_timeout_s`` 0: always
-wait for poses.
+Pose source (:class:`~ibr_ros.core.live.PoseSource`; ``pose_source``): ``auto`` decides when the
+first frame's image and camera_info are there: the flight has poses when ``camera/pose`` has a
+publisher then (every frame waits for its pose, however late), else none; ``topic`` always waits for
+poses; ``none`` ignores them. Without poses the sharpest unblurred frame of every
+``poseless_interval_s`` window of stamps is a keyframe (:class:`ibr_ros.core.keyframes.IntervalSelector`;
+a window's keyframe is published when the next window starts or the camera stream ends), published
+on ``keyframes/image`` and ``keyframes/camera_info`` only; the depth_refiner registers them (its SfM
+mode). A pose that arrives later switches to pose-based selection for good. No timer decides any of
+this: a live drone whose pose node starts after its camera should use ``pose_source: topic``.
 """
 
 from __future__ import annotations
 
 import sys
-import time
 from dataclasses import replace
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -49,16 +51,29 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
 from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
+from ibr_ros.core.live import FlightStatus, PoseSource
 from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
     declare,
+    input_qos,
+    latched_qos,
     model_qos,
     run_node,
-    sensor_qos,
     size_mismatch,
     subscribe_field,
 )
+
+#: ``image_transport`` -> the image topics it may subscribe, in order of preference.
+TRANSPORTS = {
+    'auto': ('raw', 'compressed'),
+    'raw': ('raw',),
+    'compressed': ('compressed',),
+}
+IMAGE_TOPICS = {
+    'raw': (Image, 'camera/image_raw'),
+    'compressed': (CompressedImage, 'camera/image_raw/compressed'),
+}
 
 #: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
 POSE_TYPES = {
@@ -93,7 +108,9 @@ class FrameSubsampler(Node):
     def __init__(self) -> None:
         super().__init__('frame_subsampler')
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        self.compressed = bool(p('compressed', False, 'subscribe to camera/image_raw/compressed'))
+        transport = str(
+            p('image_transport', 'auto', "camera images: 'auto' (raw or compressed), 'raw', 'compressed'")
+        )
         self.pose_type = str(p('pose_type', 'pose', "'pose' (PoseStamped) or 'odometry' (Odometry)"))
         self.scene_depth = float(
             p('scene_depth_m', 0.0, 'typical scene depth (m); 0 = unknown', limits=(0.0, 1e5))
@@ -101,6 +118,7 @@ class FrameSubsampler(Node):
         self.max_pending = int(
             p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
         )
+        max_mb = float(p('max_pending_mb', 128.0, 'MiB of pending frames at most', limits=(1.0, 1e6)))
         lim = {'limits': (0.0, 1e6)}
         self.config = KeyframeConfig(
             baseline_ratio=float(p('baseline_ratio', 0.08, 'keyframe baseline / scene depth', **lim)),
@@ -112,10 +130,9 @@ class FrameSubsampler(Node):
                 p('blur_ratio', 0.6, 'blurred below this x median sharpness', limits=(0.0, 1.0))
             ),
         )
-        self.pose_timeout = float(
-            p('pose_timeout_s', 2.0, 'no pose in this time (s): keyframes without poses; 0 = never',
-              limits=(0.0, 1e6))
-        )  # fmt: skip
+        pose_mode = str(
+            p('pose_source', 'auto', "'auto' (poses iff camera/pose has a publisher), 'topic' or 'none'")
+        )
         self.poseless_interval = float(
             p(
                 'poseless_interval_s',
@@ -133,6 +150,11 @@ class FrameSubsampler(Node):
         )
         if self.pose_type not in POSE_TYPES:
             raise ValueError(f"parameter pose_type must be 'pose' or 'odometry', got {self.pose_type!r}")
+        if transport not in TRANSPORTS:
+            raise ValueError(
+                f"parameter image_transport must be 'auto', 'raw' or 'compressed', got {transport!r}"
+            )
+        self.pose_source = PoseSource(pose_mode)  # ValueError names the parameter
         self.baseline = target_baseline(self.target, self.expected_path)
         # The scene depth the baseline rule uses (None: min_baseline_m).
         self.decide_depth = self.scene_depth or None
@@ -150,52 +172,91 @@ class FrameSubsampler(Node):
             self.max_pending,
             lambda detail: self.bad('incomplete', detail),
             supersede=True,  # a sensor stream arrives in order: older frames can no longer complete
+            max_bytes=round(max_mb * 2**20),
         )
         self.frames_seen = 0
         self.keyframes = 0
-        self.poses_seen = 0
-        self.poseless = False  # selecting keyframes without poses
         self.interval = IntervalSelector(self.poseless_interval, self.config)
-        self._waiting: dict[int, float] = {}  # stamp -> when its image and camera_info were there
-        self._last_poseless = time.monotonic()
-        qos = sensor_qos()
-        image_in = (
-            (CompressedImage, 'camera/image_raw/compressed')
-            if self.compressed
-            else (Image, 'camera/image_raw')
-        )
+        self.camera = 'waiting'
         info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
         pose_type, to_matrix = POSE_TYPES[self.pose_type]
         pose = lambda m: (to_matrix(m), m.header.frame_id or 'map')  # noqa: E731
-        for msg_type, topic, field, convert in (
-            (*image_in, 'image', msg_utils.camera_image_to_rgb),
-            (CameraInfo, 'camera/camera_info', 'camera_info', info),
-            (pose_type, 'camera/pose', 'pose', pose),
-        ):
-            subscribe_field(self, msg_type, topic, qos, field, convert, self._put, self.bad)
+        # field -> candidate (message type, topic, conversion), in order of preference.
+        self._inputs: dict[str, list[tuple[type, str, object]]] = {
+            'image': [(*IMAGE_TOPICS[t], msg_utils.camera_image_to_rgb) for t in TRANSPORTS[transport]],
+            'camera_info': [(CameraInfo, 'camera/camera_info', info)],
+        }
+        if pose_mode != 'none':
+            self._inputs['pose'] = [(pose_type, 'camera/pose', pose)]
+        self.subscribed: dict[str, str] = {}  # field -> resolved topic
         out = model_qos()
         self.pub_image = self.create_publisher(Image, 'keyframes/image', out)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/camera_info', out)
         self.pub_pose = self.create_publisher(PoseStamped, 'keyframes/pose', out)
-        if self.pose_timeout > 0:
-            self.create_timer(min(0.1, self.pose_timeout / 2), self._on_timer)
+        self.pub_status = self.create_publisher(DiagnosticStatus, 'keyframes/status', latched_qos())
+        self._status: FlightStatus | None = None
+        self._publish_status()
+        self._on_graph()
+        self.create_timer(0.1, self._on_graph)  # polls the ROS graph: publishers that came or went
+
+    # -- inputs: subscribed as their publishers appear ----------------------------------------------
+    def _on_graph(self) -> None:
+        for field, candidates in self._inputs.items():
+            if field in self.subscribed:
+                continue
+            for msg_type, topic, convert in candidates:
+                name = self.resolve_topic_name(topic)
+                infos = self.get_publishers_info_by_topic(name)
+                if not infos:
+                    continue
+                qos, how = input_qos(infos)
+                subscribe_field(self, msg_type, topic, qos, field, convert, self._put, self.bad)
+                self.subscribed[field] = name
+                self.get_logger().info(f'{field}: subscribed to {name} ({how})')
+                break
+        image = self.subscribed.get('image')
+        if image is None:
+            return
+        n = self.count_publishers(image)
+        if n and self.camera != 'streaming':
+            self.camera = 'streaming'
+            self._publish_status()
+        elif not n and self.camera == 'streaming':
+            self.camera = 'ended'
+            self.get_logger().info(f'{image} has no publisher any more: the camera stream ended')
+            if self.pose_source.state == 'none':
+                self._publish_poseless(self.interval.flush())
+            self._publish_status()
+
+    def _publish_status(self) -> None:
+        status = FlightStatus(
+            pose_source=self.pose_source.state,
+            camera=self.camera,
+            frames=self.frames_seen,
+            keyframes=self.keyframes,
+            image_topic=self.subscribed.get('image', ''),
+            pose_topic=self.subscribed.get('pose', ''),
+        )
+        if status == self._status:
+            return
+        self._status = status
+        text = {'pose': 'keyframes with poses', 'none': 'keyframes without poses', 'unknown': 'no frame yet'}
+        self.pub_status.publish(
+            msg_utils.pairs_to_status(
+                self.get_fully_qualified_name(),
+                status.to_pairs(),
+                message=f'{text[status.pose_source]}; camera {status.camera}',
+            )
+        )
 
     def _put(self, stamp: int, field: str, value: object) -> None:
-        if field == 'pose':
-            self.poses_seen += 1
-            self._waiting.clear()
-            if self.poseless:
-                self.poseless = False
-                self.get_logger().warning('camera/pose arrives: keyframes are selected by pose again')
+        if field == 'pose' and self.pose_source.pose_arrived():
+            self.get_logger().warning('camera/pose arrives: keyframes are selected by pose from now on')
+            self._publish_status()
         if (f := self.frames.put(stamp, field, value)) is None:
-            if not self.poses_seen and self.pose_timeout > 0:
-                partial = self.frames.partial(stamp)
-                if 'image' in partial and 'camera_info' in partial:
-                    if self.poseless:
-                        self.frames.discard(stamp)
-                        self._poseless_frame(stamp, partial)
-                    else:
-                        self._waiting.setdefault(stamp, time.monotonic())
+            partial = self.frames.partial(stamp)
+            if field != 'pose' and 'image' in partial and 'camera_info' in partial:
+                self._frame_without_pose(stamp, partial)
             return
         image, (info, camera), (pose, pose_frame) = f['image'], f['camera_info'], f['pose']
         if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
@@ -203,14 +264,32 @@ class FrameSubsampler(Node):
             return
         self.frames_seen += 1
         d = self.selector.decide(stamp, pose, blur_score(image), self.decide_depth)
-        if not d.keep:
+        if d.keep:
+            self._publish(stamp, image, info, (pose, pose_frame))
+            self.get_logger().info(
+                f'keyframe {self.keyframes} at {stamp} ns ({d.reason}: baseline {d.baseline_m:.1f} m, '
+                f'rotation {d.rotation_deg:.1f} deg; {self.frames_seen} frames seen)'
+            )
+        else:
             self.get_logger().debug(f'frame {stamp}: skipped ({d.reason})')
-            return
-        self._publish(stamp, image, info, (pose, pose_frame))
-        self.get_logger().info(
-            f'keyframe {self.keyframes} at {stamp} ns ({d.reason}: baseline {d.baseline_m:.1f} m, '
-            f'rotation {d.rotation_deg:.1f} deg; {self.frames_seen} frames seen)'
-        )
+        self._publish_status()
+
+    def _frame_without_pose(self, stamp: int, partial: dict) -> None:
+        """Image and camera_info of ``stamp`` are there, its pose is not (yet)."""
+        pose_topic = self.subscribed.get('pose')
+        publishers = self.count_publishers(pose_topic) if pose_topic else 0
+        if self.pose_source.frame_ready(publishers):
+            state = self.pose_source.state
+            self.get_logger().info(
+                'the flight has poses: every frame waits for its camera/pose'
+                if state == 'pose'
+                else 'camera/pose has no publisher: selecting keyframes without poses (the sharpest frame '
+                f'every {self.poseless_interval:g} s), published without keyframes/pose'
+            )
+            self._publish_status()
+        if self.pose_source.state == 'none':
+            self.frames.discard(stamp)
+            self._poseless_frame(stamp, partial)
 
     def _publish(
         self, stamp: int, image: np.ndarray, info: CameraInfo, pose: tuple[np.ndarray, str] | None
@@ -231,8 +310,8 @@ class FrameSubsampler(Node):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
-        self._last_poseless = time.monotonic()
         self._publish_poseless(self.interval.push(stamp, blur_score(image), (image, info)))
+        self._publish_status()
 
     def _publish_poseless(self, chosen: list[tuple[int, tuple[np.ndarray, CameraInfo]]]) -> None:
         for stamp, (image, info) in chosen:
@@ -241,25 +320,6 @@ class FrameSubsampler(Node):
                 f'keyframe {self.keyframes} at {stamp} ns (no pose: the sharpest frame of its '
                 f'{self.poseless_interval:g} s window; {self.frames_seen} frames seen)'
             )
-
-    def _on_timer(self) -> None:
-        now = time.monotonic()
-        if not self.poses_seen and not self.poseless and self._waiting:
-            if now - min(self._waiting.values()) < self.pose_timeout:
-                return
-            self.poseless = True
-            self.get_logger().warning(
-                f'no camera/pose within {self.pose_timeout:g} s: selecting keyframes without poses (the '
-                f'sharpest frame every {self.poseless_interval:g} s), published without keyframes/pose'
-            )
-            for stamp in sorted(self._waiting):
-                partial = self.frames.partial(stamp)
-                if 'image' in partial and 'camera_info' in partial:
-                    self.frames.discard(stamp)
-                    self._poseless_frame(stamp, partial)
-            self._waiting.clear()
-        elif self.poseless and now - self._last_poseless >= self.poseless_interval:
-            self._publish_poseless(self.interval.flush())  # the stream paused or ended
 
 
 def main(args: list[str] | None = None) -> int:

@@ -4,7 +4,9 @@ Subscribes (reliable, transient local, so a renderer started late or restarted r
 model already published): ``keyframes/image`` (``sensor_msgs/Image``), ``keyframes/camera_info``,
 ``keyframes/pose`` (``geometry_msgs/PoseStamped``) and ``keyframes/depth`` (``32FC1`` metres or
 ``16UC1`` mm), matched by stamp. A keyframe joins the model once all four arrived; a newer depth for
-it (a refiner's ``refine_again``) replaces the old one. Superpixels and warp data of a new view are
+it (a refiner's ``refine_again``) replaces the old one; copies of what the model holds (refiners
+mirror the model) are ignored, and a depth with no known value is rejected (counted, WARN), never
+swapped in for a good one. Superpixels and warp data of a new view are
 computed when it arrives (:meth:`~ibr_ros.core.render.NovelViewRenderer.prepare`), not on a query.
 
 Queries: ``novel_view/query`` (``geometry_msgs/PoseStamped``, reliable): camera-to-world pose of
@@ -15,7 +17,10 @@ Output intrinsics: ``width`` x ``height`` with ``hfov_deg``; each 0 takes the la
 (all three 0: the keyframe camera itself, distortion dropped). They may be changed at run time
 (``ros2 param set``, ``ibr query --width/--height/--hfov``).
 
-A query is answered only when at least ``min_valid_fraction`` of the pixels were rendered.
+Queries are rendered on a worker thread, newest first: a query that arrives while another one is
+rendered replaces the one still waiting, which is counted (``superseded``) and logged, so an
+overloaded renderer answers the latest pose instead of falling ever further behind. A query is
+answered only when at least ``min_valid_fraction`` of the pixels were rendered.
 Unanswerable queries (no model yet, invalid pose, another frame, farther than the renderer's
 distance limit, facing away from every view, too incomplete) get no reply: each is counted per
 reason and logged (throttled per reason), so a client times out.
@@ -24,6 +29,7 @@ reason and logged (throttled per reason), so a client times out.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from dataclasses import replace
 
@@ -37,6 +43,7 @@ from sensor_msgs.msg import CameraInfo, Image
 import msg_utils
 from ibr_ros.core.camera import PinholeCamera
 from ibr_ros.core.geometry import look_at
+from ibr_ros.core.live import LatestOnly
 from ibr_ros.core.render import NovelViewRenderer, SourceView
 from ibr_ros.node_config import RENDER_PARAMETERS, render_config
 from ibr_ros.nodes.common import (
@@ -69,6 +76,7 @@ class ViewRenderer(Node):
             p('min_valid_fraction', 0.5, 'answer only when this fraction was rendered', limits=(0.0, 1.0))
         )
         self.frame_id = str(p('frame_id', 'novel_view_optical', 'frame_id of the replies'))
+        max_mb = float(p('max_pending_mb', 128.0, 'MiB of pending frames at most', limits=(1.0, 1e6)))
         self.max_keyframes = int(p('max_keyframes', 1000, 'keyframes kept in the model', limits=(1, 100000)))
         self.config = render_config(
             {
@@ -84,6 +92,7 @@ class ViewRenderer(Node):
             self.max_keyframes,
             lambda detail: self.bad('incomplete', detail),
             what='keyframe',
+            max_bytes=round(max_mb * 2**20),
         )
         self.indices: dict[int, int] = {}  # stamp -> view index in the renderer
         self.model_frame = ''
@@ -102,12 +111,17 @@ class ViewRenderer(Node):
             (Image, 'depth', lambda m: np.array(msg_utils.depth_image_to_m(m))),
         ):
             subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
-        self.create_subscription(PoseStamped, 'novel_view/query', self.on_query, reliable_qos())
+        self._lock = threading.Lock()  # the model: changed by the executor, read by the query thread
+        self._queries: LatestOnly[tuple[PoseStamped, float]] = LatestOnly()  # query, arrival
+        self._stop = threading.Event()
+        self.create_subscription(PoseStamped, 'novel_view/query', self._on_query_msg, reliable_qos(100))
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
         self.add_on_set_parameters_callback(self._on_params)
         if bool(p('warmup', True, 'render a tiny scene at start-up (JIT-compiled kernels load once)')):
             self._warmup()
+        self._worker = threading.Thread(target=self._serve, name='view_renderer_queries', daemon=True)
+        self._worker.start()
 
     def _on_params(self, params: list[Parameter]) -> SetParametersResult:
         """Adopt new output intrinsics; rclpy has already checked them against their declared ranges."""
@@ -129,9 +143,18 @@ class ViewRenderer(Node):
 
     # -- model ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
+        with self._lock:
+            self._put_locked(stamp, field, value)
+
+    def _put_locked(self, stamp: int, field: str, value: object) -> None:
+        if field == 'depth' and not (np.isfinite(value) & (value > 0)).any():  # type: ignore[operator]
+            self.bad('depth_unknown', f'keyframe {stamp} ns: a depth with no known value, rejected')
+            return
         if stamp in self.indices:  # image, camera_info and pose are fixed once a keyframe is in the model
             if field == 'depth':
                 v = self.renderer.views[self.indices[stamp]]
+                if np.array_equal(v.depth, value, equal_nan=True):
+                    return  # a mirror's copy of the depth the model has
                 self._update(
                     stamp, {'image': v.rgb, 'camera_info': v.camera, 'pose': (v.t_wc, ''), 'depth': value}
                 )
@@ -192,8 +215,38 @@ class ViewRenderer(Node):
             self.width or kf.width, self.height or kf.height, self.hfov or kf.hfov_deg
         )
 
-    def on_query(self, msg: PoseStamped) -> None:
-        t0 = time.perf_counter()
+    def _on_query_msg(self, msg: PoseStamped) -> None:
+        """Hand the query to the render thread; one it has not started yet is superseded (counted)."""
+        old = self._queries.put((msg, time.perf_counter()))
+        if old is not None:
+            self.unanswered(
+                'superseded',
+                f'query {msg_utils.stamp_to_ns(old[0].header.stamp)} ns superseded by a newer one before it '
+                'was rendered (queries arrive faster than they render)',
+            )
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            item = self._queries.take(timeout=0.5)
+            if item is None or self._stop.is_set():
+                continue
+            try:
+                with self._lock:
+                    self.on_query(*item)
+            except Exception as exc:  # the thread survives any one query
+                if not self._stop.is_set():
+                    self.unanswered('render_error', f'query: {exc!r}')
+
+    def destroy_node(self) -> None:
+        self._stop.set()
+        self._queries.close()
+        self._worker.join(timeout=5.0)
+        super().destroy_node()
+
+    def on_query(self, msg: PoseStamped, t0: float | None = None) -> None:
+        """Render and publish the reply to one query that arrived at ``t0`` (perf_counter; the caller
+        holds the model lock)."""
+        t0 = time.perf_counter() if t0 is None else t0
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
         if self.latest_camera is None:
             self.unanswered('no_model', f'query {stamp} ns: no keyframe with depth received yet')

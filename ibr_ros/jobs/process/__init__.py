@@ -21,24 +21,24 @@ The same core code as the nodes, run synchronously in bag-time order (determinis
 3. render: :class:`~ibr_ros.core.render.NovelViewRenderer` (the view_renderer's parameters) at
    ``views`` poses along the keyframe path (:func:`ibr_ros.jobs.demo.interpolate_path`).
 
-SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a bag without a
-pose topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm``
-(its poses are then ignored). Keyframes are chosen without poses as the frame_subsampler does
-after ``pose_timeout_s`` (which must be > 0): the sharpest unblurred frame of every
-``poseless_interval_s`` window (:class:`~ibr_ros.core.keyframes.IntervalSelector`). With
+SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a bag without a pose
+topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm`` (its poses
+are then ignored). Keyframes are chosen without poses as the frame_subsampler does without poses
+(its ``pose_source`` ``auto``; ``topic`` refuses, ``none`` always): the sharpest unblurred frame of
+every ``poseless_interval_s`` window (:class:`~ibr_ros.core.keyframes.IntervalSelector`). With
 ``sfm_mode`` ``always`` on a bag with poses the keyframes are chosen by pose (as live) and their
 poses ignored. Then all keyframes (at least ``sfm_min_keyframes``) are registered together by ONE
 :meth:`~ibr_ros.core.sfm_session.SfmSession.update` (images downscaled to ``sfm_max_side``; no
 incremental updates offline), with GPS positions from the bag's ``NavSatFix`` topic when there is
 one (converted to ENU metres with the first usable fix as origin and interpolated linearly to the
-keyframe stamps, at most :data:`GPS_MAX_GAP_S` from a fix, as ``ibr register`` does). Frame of
-the result: ENU metres (frame_id ``map``) when the model could be aligned to >= 3 GPS positions,
-else the documented ``sfm`` frame (frame_id ``sfm``; unit = the first keyframe baseline, or metres
-with ``sfm_scale`` + ``sfm_scale_m``; without a scale ``depth_range`` and ``scene_depth_m`` are
-ignored, like the node). Unregistered keyframes are dropped (logged, and listed in the summary).
-The registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, possibly an
-initial guess) and are undistorted with it (:func:`~ibr_ros.core.undistort.undistort_image`,
-valid pixels only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
+keyframe stamps, at most :data:`GPS_MAX_GAP_S` from a fix, as ``ibr register`` does). Frame of the
+result: ENU metres (frame_id ``map``) when the model could be aligned to >= 3 GPS positions, else
+the documented ``sfm`` frame (frame_id ``sfm``; unit = the first keyframe baseline, or metres with
+``sfm_scale`` + ``sfm_scale_m``; without a scale ``depth_range`` and ``scene_depth_m`` are ignored,
+like the node). Unregistered keyframes are dropped (logged, and listed in the summary). The
+registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, possibly an initial
+guess) and are undistorted with it (:func:`~ibr_ros.core.undistort.undistort_image`, valid pixels
+only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
 
 Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 params file
 (sections ``/**``, ``<node>`` or ``/<ns>/<node>``), so live and offline runs agree.
@@ -59,6 +59,8 @@ centres to them: depths are scaled by its scale, novel view poses moved by it).
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import time
 from pathlib import Path
 
@@ -104,8 +106,7 @@ def process_bag(
         raise UserError(f'--views must be >= 0, got {o.views}')
     if o.max_keyframes is not None and o.max_keyframes < 1:
         raise UserError(f'--max-keyframes must be >= 1, got {o.max_keyframes}')
-    if (out / 'bag').exists() and not o.overwrite:
-        raise UserError(f'{out / "bag"} exists already (pass --overwrite to replace it)')
+    _check_out(out, o.overwrite)
     params = load_params(o.params)
     cfg = _configs(params, o)
     threads = _set_threads(o.threads)
@@ -121,76 +122,108 @@ def process_bag(
     t_ref = time.perf_counter()
     views, render_info = _render_all(keyframes, cfg, o.views, progress)
     t_render = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
-    model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
-    topic_counts = _write_bag(out / 'bag', keyframes, views, cfg, model_frame, o.overwrite)
-    t_write = time.perf_counter()
-    previews = out / 'previews'
-    previews.mkdir(exist_ok=True)
-    for old in previews.glob('*.png'):  # a previous run's previews would mix with these
-        old.unlink()
-    gt = _evaluate(bag, keyframes, views, previews, progress, sfm=sfm_info is not None)
-    t_eval = time.perf_counter()
+    # Everything goes into a staging folder next to out, renamed to out once complete: an
+    # interrupted or failed run leaves the previous result as it was.
+    stage = out.parent / f'.{out.name}.partial-{os.getpid()}'
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    try:
+        model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
+        topic_counts = _write_bag(stage / 'bag', keyframes, views, cfg, model_frame, False)
+        t_write = time.perf_counter()
+        previews = stage / 'previews'
+        previews.mkdir()
+        gt = _evaluate(bag, keyframes, views, previews, progress, sfm=sfm_info is not None)
+        t_eval = time.perf_counter()
 
-    refined = [k for k in keyframes if k.depth is not None]
-    mvs_s = sum(k.timings_s.get('mvs', 0.0) for k in keyframes)
-    refine_s = sum(k.timings_s.get('refine', 0.0) for k in keyframes)
-    timings = {
-        'subsample': t_sub - t_start,
-        'sfm': t_sfm - t_sub,
-        'mvs': mvs_s,
-        'refine': refine_s,
-        'schedule': (t_ref - t_sfm) - mvs_s - refine_s,
-        'render': t_render - t_ref,
-        'write': t_write - t_render,
-        'pipeline': t_write - t_start,
-        'evaluate': t_eval - t_write,
-        'total': t_eval - t_start,
-    }
-    n = len(keyframes)
-    answered = [v for v in views if v.rgb is not None]
-    summary: dict[str, object] = {
-        'bag': str(bag),
-        'topics': sub.topics,
-        'params': params,
-        'threads': threads,
-        'frames': {
-            'images': sub.counts['image'],
-            'camera_info': sub.counts['camera_info'],
-            'poses': sub.counts['pose'],
-            'complete': sub.counts['frames'],
-            'decisions': dict(sorted(sub.decisions.items())),
-            'bad': dict(sorted(sub.bad.items())),
-            'stopped_at_max_keyframes': sub.stopped,
-        },
-        'keyframe_selection': sub.selection,
-        'sfm': sfm_info,
-        'keyframes': n,
-        'refined': len(refined),
-        'refine': refine_info,
-        'views_requested': len(views),
-        'views_answered': len(answered),
-        'unanswered': {str(v.stamp): v.reason for v in views if v.rgb is None},
-        'render': render_info,
-        'render_ms_median': float(np.median([1e3 * v.render_s for v in views])) if views else None,
-        'output': {'bag': str(out / 'bag'), 'topics': topic_counts},
-        'timings_s': timings,
-        'seconds_per_keyframe': {k: v / n for k, v in timings.items()},
-        'per_keyframe': [
-            {
-                'stamp': k.stamp,
-                'reason': k.reason,
-                'refined': k.depth is not None,
-                'neighbours': list(k.neighbours),
-                **{f'{s}_s': t for s, t in k.timings_s.items()},
-            }
-            for k in keyframes
-        ],
-        'ground_truth': gt,
-    }
-    write_atomic(out / 'summary.json', json.dumps(summary, indent=2, default=_json_default) + '\n')
-    write_atomic(out / 'summary.md', _markdown(summary))
+        refined = [k for k in keyframes if k.depth is not None]
+        mvs_s = sum(k.timings_s.get('mvs', 0.0) for k in keyframes)
+        refine_s = sum(k.timings_s.get('refine', 0.0) for k in keyframes)
+        timings = {
+            'subsample': t_sub - t_start,
+            'sfm': t_sfm - t_sub,
+            'mvs': mvs_s,
+            'refine': refine_s,
+            'schedule': (t_ref - t_sfm) - mvs_s - refine_s,
+            'render': t_render - t_ref,
+            'write': t_write - t_render,
+            'pipeline': t_write - t_start,
+            'evaluate': t_eval - t_write,
+            'total': t_eval - t_start,
+        }
+        n = len(keyframes)
+        answered = [v for v in views if v.rgb is not None]
+        summary: dict[str, object] = {
+            'bag': str(bag),
+            'topics': sub.topics,
+            'params': params,
+            'threads': threads,
+            'frames': {
+                'images': sub.counts['image'],
+                'camera_info': sub.counts['camera_info'],
+                'poses': sub.counts['pose'],
+                'complete': sub.counts['frames'],
+                'decisions': dict(sorted(sub.decisions.items())),
+                'bad': dict(sorted(sub.bad.items())),
+                'stopped_at_max_keyframes': sub.stopped,
+            },
+            'keyframe_selection': sub.selection,
+            'sfm': sfm_info,
+            'keyframes': n,
+            'refined': len(refined),
+            'refine': refine_info,
+            'views_requested': len(views),
+            'views_answered': len(answered),
+            'unanswered': {str(v.stamp): v.reason for v in views if v.rgb is None},
+            'render': render_info,
+            'render_ms_median': float(np.median([1e3 * v.render_s for v in views])) if views else None,
+            'output': {'bag': str(out / 'bag'), 'topics': topic_counts},
+            'timings_s': timings,
+            'seconds_per_keyframe': {k: v / n for k, v in timings.items()},
+            'per_keyframe': [
+                {
+                    'stamp': k.stamp,
+                    'reason': k.reason,
+                    'refined': k.depth is not None,
+                    'neighbours': list(k.neighbours),
+                    **{f'{s}_s': t for s, t in k.timings_s.items()},
+                }
+                for k in keyframes
+            ],
+            'ground_truth': gt,
+        }
+        write_atomic(stage / 'summary.json', json.dumps(summary, indent=2, default=_json_default) + '\n')
+        write_atomic(stage / 'summary.md', _markdown(summary))
+        _commit(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     return summary
+
+
+#: What ``ibr process`` writes into its output folder.
+OUTPUTS = ('bag', 'previews', 'summary.json', 'summary.md')
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    """Refuse an output folder that would lose something: a result without ``overwrite``, other files."""
+    if out.exists() and not out.is_dir():
+        raise UserError(f'{out} is not a folder')
+    if (out / 'bag').exists() and not overwrite:
+        raise UserError(f'{out / "bag"} exists already (pass --overwrite to replace it)')
+    if out.is_dir() and (other := sorted(p.name for p in out.iterdir() if p.name not in OUTPUTS)):
+        raise UserError(
+            f'{out} holds other files ({", ".join(other[:5])}): ibr process replaces its output folder '
+            'as a whole; choose an empty or new folder'
+        )
+
+
+def _commit(stage: Path, out: Path) -> None:
+    """Put the complete ``stage`` in place of ``out`` (two renames; the old result is removed last)."""
+    old = out.parent / f'.{out.name}.old-{os.getpid()}'
+    if out.exists():
+        out.rename(old)
+    stage.rename(out)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def _set_threads(threads: int | None) -> int:

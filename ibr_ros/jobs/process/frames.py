@@ -204,15 +204,17 @@ def _select_topics(
     no_pose = 'no pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry; --pose-topic)'
     if o.sfm:
         why: str | None = '--sfm'
+    elif cfg.pose_source == 'none':
+        why = "frame_subsampler pose_source 'none'"
     elif sel.pose is None and cfg.sfm_mode == 'off':
         raise UserError(
             f'{no_pose} and depth_refiner sfm_mode is off: frames without poses are not refined '
             f'(sfm_mode auto or --sfm registers them with SfM); {where}'
         )
-    elif sel.pose is None and cfg.pose_timeout_s <= 0:
+    elif sel.pose is None and cfg.pose_source == 'topic':
         raise UserError(
-            f'{no_pose} and frame_subsampler pose_timeout_s is 0: it never selects keyframes without poses '
-            f'(set it > 0 or pass --sfm); {where}'
+            f"{no_pose} and frame_subsampler pose_source is 'topic': it never selects keyframes without "
+            f"poses (set it to 'auto' or pass --sfm); {where}"
         )
     elif sel.pose is None:
         why = 'no pose topic'

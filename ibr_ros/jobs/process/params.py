@@ -12,6 +12,7 @@ from typing import TypeVar
 import yaml
 
 from ibr_ros.core.keyframes import KeyframeConfig
+from ibr_ros.core.live import POSE_MODES
 from ibr_ros.core.mvs import MvsOptions
 from ibr_ros.core.refine import RefinerConfig
 from ibr_ros.core.render import RenderConfig
@@ -143,7 +144,7 @@ class _Configs:
     out_size: tuple[int, int, float]  # width, height, hfov_deg; 0 = the last keyframe's
     min_valid: float
     view_frame: str
-    pose_timeout_s: float
+    pose_source: str
     poseless_interval_s: float
     sfm_mode: str
     sfm_min_keyframes: int
@@ -174,7 +175,11 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         scale_hint = _named(
             'depth_refiner', sfm_settings, sfm_mode, str(dr['sfm_scale']), float(dr['sfm_scale_m'])
         )
-        pose_timeout_s = float(fs['pose_timeout_s'])
+        pose_source = str(fs['pose_source'])
+        if pose_source not in POSE_MODES:
+            raise UserError(
+                f'frame_subsampler pose_source must be one of {", ".join(POSE_MODES)}, got {pose_source!r}'
+            )
         poseless_interval_s = float(fs['poseless_interval_s'])
         sfm_min_keyframes = int(dr['sfm_min_keyframes'])
         sfm_max_side = int(dr['sfm_max_side'])
@@ -205,13 +210,13 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         target_keyframes=target,
         max_pending=int(fs['max_pending']),
         schedule=schedule,
-        flush=float(dr['flush_after_s']) > 0,
+        flush=True,  # offline the flight has ended: as live once keyframes/status says so
         refiner=refiner,
         render=render,
         out_size=size,
         min_valid=float(vr['min_valid_fraction']),
         view_frame=str(vr['frame_id']),
-        pose_timeout_s=pose_timeout_s,
+        pose_source=pose_source,
         poseless_interval_s=poseless_interval_s,
         sfm_mode=sfm_mode,
         sfm_min_keyframes=sfm_min_keyframes,

@@ -59,6 +59,10 @@ def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | N
         kf.depth = r.depth
         kf.neighbours = job.neighbours
         kf.timings_s = {'mvs': t1 - t0, 'refine': t2 - t1}
+        LOG.info(
+            'refined keyframe %d/%d (%d ns) with %d neighbours in %.2f s',
+            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), t2 - t0,
+        )  # fmt: skip
         if progress is not None:
             progress('keyframes', len(scheduler.refined()), len(keyframes))
     for s in scheduler.unrefined():

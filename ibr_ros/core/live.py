@@ -1,0 +1,192 @@
+"""Policy of the live graph, as small pure classes: what the graph states decides, never a timer.
+
+- :class:`PoseSource`: whether this flight has poses (the frame_subsampler decides it from its pose
+  input, publishes it latched as :class:`FlightStatus`, and the depth_refiner follows it).
+- :class:`FlightStatus`: the frame_subsampler's latched account of the flight (pose source, camera
+  stream state, frame and keyframe counts), as string key-values for ``diagnostic_msgs/KeyValue``.
+- :class:`ShardMembership`: which sharded refiners are alive (their heartbeats within a lease) and
+  which of them owns a keyframe: a dead worker's keyframes go to the live ones.
+- :class:`LatestOnly`: a one-slot hand-over from a fast producer to a slow consumer; a newer item
+  supersedes the one not taken yet (the caller counts it), so an overloaded consumer works newest first.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, fields
+from typing import Generic, TypeVar
+
+from ibr_ros.core.schedule import shard_of
+
+__all__ = [
+    'CAMERA_STATES',
+    'POSE_MODES',
+    'FlightStatus',
+    'LatestOnly',
+    'PoseSource',
+    'ShardMembership',
+]
+
+#: ``pose_source`` parameter values: ``auto`` (poses iff the pose topic has a publisher when the first
+#: frame is complete, or once a pose arrives), ``topic`` (always wait for poses), ``none`` (never).
+POSE_MODES = ('auto', 'topic', 'none')
+
+#: States of the camera stream: no publisher yet, publishing, every publisher gone (the end of a bag).
+CAMERA_STATES = ('waiting', 'streaming', 'ended')
+
+T = TypeVar('T')
+
+
+class PoseSource:
+    """Whether the flight has poses: ``state`` is ``'unknown'``, ``'pose'`` or ``'none'``.
+
+    In ``auto`` the state is decided when the first frame (image + camera_info) is complete: ``pose``
+    when the pose topic has a publisher then (the frame waits for its pose, however late), else
+    ``none``. A pose that arrives later switches to ``pose`` for good. ``topic`` is ``pose`` from the
+    start, ``none`` is ``none`` and ignores poses.
+    """
+
+    def __init__(self, mode: str) -> None:
+        if mode not in POSE_MODES:
+            raise ValueError(f'parameter pose_source must be one of {", ".join(POSE_MODES)}, got {mode!r}')
+        self.mode = mode
+        self.state = {'auto': 'unknown', 'topic': 'pose', 'none': 'none'}[mode]
+
+    def pose_arrived(self) -> bool:
+        """A pose message arrived; True when that changed the state."""
+        if self.mode == 'none' or self.state == 'pose':
+            return False
+        self.state = 'pose'
+        return True
+
+    def frame_ready(self, pose_publishers: int) -> bool:
+        """A frame's image and camera_info are there without a pose; True when that decided the state."""
+        if self.state != 'unknown':
+            return False
+        self.state = 'pose' if pose_publishers > 0 else 'none'
+        return True
+
+
+@dataclass(frozen=True)
+class FlightStatus:
+    """The frame_subsampler's latched status (``keyframes/status``); every field is a string value.
+
+    ``pose_source``: ``unknown``, ``pose`` or ``none`` (:class:`PoseSource`); ``camera``: one of
+    :data:`CAMERA_STATES`; ``frames``: complete frames received; ``keyframes``: keyframes published;
+    ``image_topic`` / ``pose_topic``: the resolved input topics ('' while not subscribed).
+    """
+
+    pose_source: str = 'unknown'
+    camera: str = 'waiting'
+    frames: int = 0
+    keyframes: int = 0
+    image_topic: str = ''
+    pose_topic: str = ''
+
+    def to_pairs(self) -> list[tuple[str, str]]:
+        return [(k, str(v)) for k, v in asdict(self).items()]
+
+    @classmethod
+    def from_pairs(cls, pairs: Iterable[tuple[str, str]]) -> FlightStatus:
+        """Parse key-values (unknown keys ignored); ValueError naming a malformed field and value."""
+        values: dict[str, object] = {}
+        known = {f.name: f.type for f in fields(cls)}
+        for key, value in pairs:
+            if key not in known:
+                continue
+            if key in ('frames', 'keyframes'):
+                try:
+                    values[key] = int(value)
+                except ValueError:
+                    raise ValueError(f'status field {key}: {value!r} is not an integer') from None
+            else:
+                values[key] = value
+        status = cls(**values)  # type: ignore[arg-type]
+        if status.pose_source not in ('unknown', 'pose', 'none'):
+            raise ValueError(f'status field pose_source: {status.pose_source!r} is not unknown, pose or none')
+        if status.camera not in CAMERA_STATES:
+            raise ValueError(
+                f'status field camera: {status.camera!r} is not one of {", ".join(CAMERA_STATES)}'
+            )
+        return status
+
+
+class ShardMembership:
+    """Live refiner workers and the owner of each keyframe.
+
+    A worker is alive while its heartbeats arrive within ``lease_s`` of each other (this worker always
+    is). A worker never heard from counts as alive for the first ``lease_s`` after this one started,
+    so that workers starting together do not take each other's keyframes. A keyframe belongs to its
+    :func:`~ibr_ros.core.schedule.shard_of` worker while that one is alive, else to one of the live
+    workers, chosen by the same hash over their sorted indices (every worker with the same view of
+    who is alive picks the same one). Times are seconds of one monotonic clock.
+    """
+
+    def __init__(self, num_workers: int, worker_index: int, lease_s: float, now: float) -> None:
+        if not 0 <= worker_index < num_workers:
+            raise ValueError(f'worker_index must be in 0..{num_workers - 1}, got {worker_index}')
+        if lease_s <= 0:
+            raise ValueError(f'lease_s must be > 0, got {lease_s}')
+        self.num_workers = num_workers
+        self.worker_index = worker_index
+        self.lease_s = lease_s
+        self.started = now
+        self._seen: dict[int, float] = {}
+
+    def heard(self, worker: int, now: float) -> bool:
+        """A heartbeat of ``worker`` at ``now``; True when ``worker`` was not alive before it."""
+        if not 0 <= worker < self.num_workers or worker == self.worker_index:
+            return False
+        was = self._alive(worker, now)
+        self._seen[worker] = now
+        return not was
+
+    def _alive(self, worker: int, now: float) -> bool:
+        if worker == self.worker_index:
+            return True
+        seen = self._seen.get(worker)
+        if seen is None:
+            return now - self.started < self.lease_s
+        return now - seen < self.lease_s
+
+    def live(self, now: float) -> tuple[int, ...]:
+        """Indices of the live workers, sorted."""
+        return tuple(w for w in range(self.num_workers) if self._alive(w, now))
+
+    def owner(self, stamp_ns: int, live: tuple[int, ...]) -> int:
+        """The worker that refines keyframe ``stamp_ns`` when ``live`` (from :meth:`live`) are alive."""
+        base = shard_of(stamp_ns, self.num_workers)
+        if base in live or not live:
+            return base
+        return live[shard_of(stamp_ns, len(live))]
+
+
+class LatestOnly(Generic[T]):
+    """One slot between threads: :meth:`put` replaces (and returns) an item not taken yet."""
+
+    def __init__(self) -> None:
+        self._item: T | None = None
+        self._cond = threading.Condition()
+        self._closed = False
+
+    def put(self, item: T) -> T | None:
+        """Offer ``item``; the older item it superseded, or None."""
+        with self._cond:
+            old, self._item = self._item, item
+            self._cond.notify()
+            return old
+
+    def take(self, timeout: float | None = None) -> T | None:
+        """The newest item (and empty the slot), waiting up to ``timeout`` s; None if none or closed."""
+        with self._cond:
+            if self._item is None and not self._closed:
+                self._cond.wait(timeout)
+            item, self._item = self._item, None
+            return item
+
+    def close(self) -> None:
+        """Wake a waiting :meth:`take` for good (it returns what is left, then None)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
