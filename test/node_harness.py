@@ -147,6 +147,12 @@ class InProcess:
         self.error: BaseException | None = None
         for sub in node.subscriptions:
             sub.callback = self._counted(sub.callback)
+        create = node.create_subscription
+
+        def create_counted(msg_type, topic, callback, *args, **kwargs):  # subscriptions made later
+            return create(msg_type, topic, self._counted(callback), *args, **kwargs)
+
+        node.create_subscription = create_counted
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(node)
         self.executor.add_node(self.feeder)

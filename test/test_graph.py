@@ -31,9 +31,13 @@ def test_specs_with_sharded_refiners(repo):
         'bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer'
     ]  # fmt: skip
     assert specs[2].params == {'worker_index': 0, 'num_workers': 2}
+    player = specs[0].params  # playback waits for the frame_subsampler, however long that takes
+    assert (player['wait_for_subscribers'], player['wait_timeout_s']) == (1, 0.0)
+    assert player['wait_topics'] == ['/camera/image_raw/compressed', '/camera/camera_info', '/camera/pose']
     assert specs[4].params == {'width': '320'}
     cmd = node_command(specs[3], config=repo / 'config', python='python3')
-    assert cmd[:4] == ['python3', '-m', 'ibr_ros.nodes.depth_refiner', '--ros-args']
+    # -P: the installed package, never a checkout in the working directory.
+    assert cmd[:6] == ['python3', '-P', '-m', 'ibr_ros.launch_entry', 'depth_refiner', '--ros-args']
     assert cmd[-2:] == ['-r', '__node:=depth_refiner_1']
     assert '-p' in cmd
     assert 'num_workers:=2' in cmd
@@ -48,8 +52,8 @@ def test_bad_graph_options():
         build_specs(_args(no_player=True, set=['renderer.x=1']))
     with pytest.raises(UserError, match=r'NODE\.PARAM=VALUE'):
         build_specs(_args(no_player=True, set=['oops']))
-    assert node_command(NodeSpec('frame_subsampler', {'compressed': True}), python='p')[-2:] == [
-        '-p', 'compressed:=true'
+    assert node_command(NodeSpec('frame_subsampler', {'publish': True}), python='p')[-2:] == [
+        '-p', 'publish:=true'
     ]  # fmt: skip
 
 
@@ -100,10 +104,20 @@ def test_launch_file_starts_the_same_nodes(repo, monkeypatch):
     defaults = dict(d for d in desc if isinstance(d, tuple))
     assert defaults['config_dir'] == '/opt/share/ibr_ros/config'
     opaque = desc[-1]
-    context = {'config_dir': str(repo / 'config'), 'bag': '/data/flight', 'rate': '2.0', 'refiners': '2'}
+    bag = str(repo / 'bags' / 'synth_orbit_s0')
+    context = {**defaults, 'config_dir': str(repo / 'config'), 'bag': bag, 'rate': '2.0', 'refiners': '2'}
     opaque.function(context)
     names = [n['name'] for n in started]
     assert names == ['bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer']
-    assert started[0]['parameters'][1] == {'bag': '/data/flight', 'rate': 2.0}
-    assert started[3]['parameters'][1] == {'worker_index': 1, 'num_workers': 2}
+    assert started[0]['parameters'][1] == {
+        'bag': bag,
+        'rate': 2.0,
+        'wait_for_subscribers': 1,
+        'wait_timeout_s': 0.0,
+        'wait_topics': ['/camera/image_raw/compressed', '/camera/camera_info', '/camera/pose'],
+    }
+    assert started[1]['parameters'][1] == {'image_transport': 'auto', 'pose_source': 'auto', 'scene_depth_m': 0.0}
+    assert started[3]['parameters'][1] == {
+        'max_neighbours': 4, 'scene_depth_m': 0.0, 'worker_index': 1, 'num_workers': 2
+    }  # fmt: skip
     assert all(n['package'] == 'ibr_ros' for n in started)

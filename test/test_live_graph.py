@@ -366,3 +366,43 @@ def test_ibr_process_interrupted_leaves_the_old_result(repo, tmp_path):
     assert not [q for q in tmp_path.iterdir() if q.name.startswith('.o.')]  # no staging left
     (out / 'mine.txt').write_text('x')
     assert main(['process', str(bag), '--out', str(out), '--overwrite', '--max-keyframes', '3']) == 2
+
+
+def test_full_rate_replay_selects_the_keyframes_ibr_process_selects(repo, ros_env):
+    """bag_player ``rate:=0`` -> frame_subsampler, both with the shipped config: every frame arrives
+    (reliable, acknowledged), so the live keyframes are exactly those ``ibr process`` selects."""
+    from ibr_ros.graph import camera_topics
+    from ibr_ros.jobs.process.frames import _subsample
+    from ibr_ros.jobs.process.options import ProcessOptions
+    from ibr_ros.jobs.process.params import _configs, load_params
+
+    bag = repo / 'bags' / 'synth_orbit_s0'
+    o = ProcessOptions()
+    offline = [k.stamp for k in _subsample(bag, _configs(load_params(None), o), o, None).keyframes]
+    wait = '[' + ', '.join(camera_topics(bag)) + ']'
+    subsampler = _launch('frame_subsampler', ros_env)
+    player = _launch(
+        'bag_player', ros_env, f'bag:={bag}', 'rate:=0.0', 'wait_for_subscribers:=1', 'wait_timeout_s:=0.0',
+        f'wait_topics:={wait}',
+    )  # fmt: skip
+    rclpy.init()
+    try:
+        node = rclpy.create_node('full_rate_test')
+        images: list[Image] = []
+        status: list[DiagnosticStatus] = []
+        node.create_subscription(Image, 'keyframes/image', images.append, LATCHED)
+        node.create_subscription(DiagnosticStatus, 'keyframes/status', status.append, latched_qos())
+
+        def ended() -> bool:
+            s = FlightStatus.from_pairs(msg_utils.status_to_pairs(status[-1])) if status else None
+            return s is not None and s.camera == 'ended' and len(images) == s.keyframes
+
+        assert spin_until(node, ended, 300), (subsampler.text, player.text)
+        last = FlightStatus.from_pairs(msg_utils.status_to_pairs(status[-1]))
+    finally:
+        rclpy.try_shutdown()
+        player.stop()
+        subsampler.stop()
+    assert last.frames == 200, subsampler.text  # every frame of the bag
+    assert [msg_utils.stamp_to_ns(m.header.stamp) for m in images] == offline
+    assert 'rejected input' not in subsampler.text, subsampler.text

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 import cv2
@@ -199,8 +200,12 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
             [p.text for p in procs],
         )
         t_depth = time.monotonic() - t_pub
-        spin_until(node, lambda: False, 0.5)  # a grace period in which a duplicate would show up
-        assert sorted(stamps()) == sorted(stamp_of), 'every keyframe refined exactly once'
+        # Each depth map twice on the topic: its refiner's, and the other refiner's mirror of it (so
+        # that it outlives either process); refined once (the log lines below).
+        twice = {s: 2 for s in stamp_of}
+        assert spin_until(node, lambda: Counter(stamps()) == twice, 30), Counter(stamps())
+        spin_until(node, lambda: False, 0.5)  # a grace period in which a third copy would show up
+        assert Counter(stamps()) == twice
 
         # Each worker refined its own shard, and only that (its log line follows the publication).
         def refined_by() -> list[set[int]]:

@@ -240,7 +240,7 @@ def test_frame_subsampler_survives_1000_bad_messages(repo, bag, capfd):
     frames = [resized(bag[i], (160, 90)) for i in range(0, FRAMES, 2)]  # 60 frames, 5 fps
     rng = np.random.default_rng(1)
     config = repo / 'config' / 'frame_subsampler.yaml'
-    with in_process(FrameSubsampler, config, FEEDER, compressed=False, scene_depth_m=120.0) as h:
+    with in_process(FrameSubsampler, config, FEEDER, scene_depth_m=120.0) as h:
         node = h.node
         keyframes = {
             k: h.collect(cls, f'keyframes/{k}', model_qos())

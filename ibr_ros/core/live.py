@@ -120,7 +120,9 @@ class ShardMembership:
     so that workers starting together do not take each other's keyframes. A keyframe belongs to its
     :func:`~ibr_ros.core.schedule.shard_of` worker while that one is alive, else to one of the live
     workers, chosen by the same hash over their sorted indices (every worker with the same view of
-    who is alive picks the same one). Times are seconds of one monotonic clock.
+    who is alive picks the same one). :meth:`synced`: every worker presumed alive has been heard from
+    at least once (its heartbeat lists the keyframes whose depth it published), so this worker knows
+    what is done before it refines anything. Times are seconds of one monotonic clock.
     """
 
     def __init__(self, num_workers: int, worker_index: int, lease_s: float, now: float) -> None:
@@ -149,6 +151,11 @@ class ShardMembership:
         if seen is None:
             return now - self.started < self.lease_s
         return now - seen < self.lease_s
+
+    def synced(self, now: float) -> bool:
+        """Whether every other live worker has been heard from (a worker never heard counts as live
+        only during the first lease)."""
+        return all(w in self._seen for w in self.live(now) if w != self.worker_index)
 
     def live(self, now: float) -> tuple[int, ...]:
         """Indices of the live workers, sorted."""

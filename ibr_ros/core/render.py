@@ -1141,6 +1141,15 @@ class NovelViewRenderer:
         return [int(i) for i in idx[order]], None
 
     # -- rendering ------------------------------------------------------------------------------
+    def refusal(self, t_wc: ArrayLike) -> str | None:
+        """Why :meth:`render` would render nothing at pose ``t_wc`` (invalid pose, too far, facing away
+        from every view), found without rendering; None when it would try."""
+        try:
+            t_wn = validate_pose(np.asarray(t_wc, dtype=np.float64), field='t_wc')
+        except (GeometryError, TypeError, ValueError) as e:
+            return f'invalid pose: {e}'
+        return self._candidates(t_wn)[1]
+
     def render(self, t_wc: ArrayLike, camera: PinholeCamera) -> Rendered:
         """Render the view of ``camera`` at camera-to-world pose ``t_wc`` (4x4; see module docstring)."""
         if not isinstance(camera, PinholeCamera):

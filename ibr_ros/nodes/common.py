@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import logging
 import math
+import signal
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -202,6 +204,11 @@ def run_node(
     """
     module = sys.modules.get(getattr(factory, '__module__', ''))
     name = Path(getattr(module, '__file__', None) or 'node').stem  # the node's module, also as __main__
+    if threading.current_thread() is threading.main_thread():
+        # rclpy's handlers (installed by init) shut the context down and then call these: ignore, so
+        # that no KeyboardInterrupt tears through a half-built node; spin then ends by itself.
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: None)
     try:
         rclpy.init(args=list(args) if args is not None else None)
     except RCLError as exc:
@@ -215,13 +222,20 @@ def run_node(
         except (UserError, ValueError, ParameterException) as exc:
             rclpy.logging.get_logger(name).error(f'cannot start: {exc}')
             return EXIT_BAD_CONFIG
+        except RCLError:
+            if rclpy.ok():
+                raise
+            return 0  # stopped by a signal while the node was being built
         code = spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        stopped = not rclpy.ok()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if stopped:
+        print(f'{name}: shut down by a signal or shutdown request, stopped', file=sys.stderr)
     return code
 
 

@@ -471,10 +471,16 @@ class DepthRefinerNode(Node):
 
     def _beat(self) -> None:
         """Heartbeat of this worker; takes over the keyframes of workers that went silent."""
+        with self._lock:
+            published = sorted(self._published)
         self.pub_beat.publish(
             msg_utils.pairs_to_status(
                 self.get_fully_qualified_name(),
-                [('worker_index', str(self.worker_index)), ('num_workers', str(self.num_workers))],
+                [
+                    ('worker_index', str(self.worker_index)),
+                    ('num_workers', str(self.num_workers)),
+                    ('published', ','.join(map(str, published))),
+                ],
             )
         )
         self._check_members()
@@ -483,6 +489,7 @@ class DepthRefinerNode(Node):
         values = dict(msg_utils.status_to_pairs(msg))
         try:
             worker, n = int(values['worker_index']), int(values['num_workers'])
+            published = [int(x) for x in values.get('published', '').split(',') if x]
         except (KeyError, ValueError):
             self.bad('heartbeat', f'refiners/heartbeat from {msg.name!r} without worker_index/num_workers')
             return
@@ -492,6 +499,10 @@ class DepthRefinerNode(Node):
                 f'refiners/heartbeat from {msg.name!r}: num_workers {n}, this one {self.num_workers}',
             )
             return
+        with self._lock:
+            for stamp in published:
+                if stamp not in self._published:
+                    self.schedule.published_elsewhere(stamp)
         self.members.heard(worker, time.monotonic())
         self._check_members()
 
@@ -581,6 +592,8 @@ class DepthRefinerNode(Node):
                     if self._stop.is_set():
                         return
                     self.get_logger().error(f'SfM registration failed: {exc!r}')
+            if not self.members.synced(time.monotonic()):
+                continue  # a worker presumed alive has not said yet what it refined
             with self._lock:
                 if self._version == seen and not flush_due:
                     continue

@@ -178,6 +178,7 @@ class FrameSubsampler(Node):
         self.keyframes = 0
         self.interval = IntervalSelector(self.poseless_interval, self.config)
         self.camera = 'waiting'
+        self._images = self._images_at_tick = 0  # image messages handled, at the last graph tick
         info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
         pose_type, to_matrix = POSE_TYPES[self.pose_type]
         pose = lambda m: (to_matrix(m), m.header.frame_id or 'map')  # noqa: E731
@@ -196,6 +197,10 @@ class FrameSubsampler(Node):
         self.pub_status = self.create_publisher(DiagnosticStatus, 'keyframes/status', latched_qos())
         self._status: FlightStatus | None = None
         self._publish_status()
+        images = ' or '.join(self.resolve_topic_name(t) for _, t, _ in self._inputs['image'])
+        self.get_logger().info(
+            f'waiting for a publisher of {images} (image_transport {transport}); pose_source {pose_mode}'
+        )
         self._on_graph()
         self.create_timer(0.1, self._on_graph)  # polls the ROS graph: publishers that came or went
 
@@ -218,10 +223,14 @@ class FrameSubsampler(Node):
         if image is None:
             return
         n = self.count_publishers(image)
+        # Messages still queued are handled between two ticks (one executor): none handled since the
+        # last tick and no publisher left means the stream has ended, not merely its publisher.
+        quiet = self._images == self._images_at_tick
+        self._images_at_tick = self._images
         if n and self.camera != 'streaming':
             self.camera = 'streaming'
             self._publish_status()
-        elif not n and self.camera == 'streaming':
+        elif not n and self.camera == 'streaming' and quiet:
             self.camera = 'ended'
             self.get_logger().info(f'{image} has no publisher any more: the camera stream ended')
             if self.pose_source.state == 'none':
@@ -250,6 +259,7 @@ class FrameSubsampler(Node):
         )
 
     def _put(self, stamp: int, field: str, value: object) -> None:
+        self._images += field == 'image'
         if field == 'pose' and self.pose_source.pose_arrived():
             self.get_logger().warning('camera/pose arrives: keyframes are selected by pose from now on')
             self._publish_status()

@@ -112,7 +112,7 @@ class ViewRenderer(Node):
         ):
             subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
         self._lock = threading.Lock()  # the model: changed by the executor, read by the query thread
-        self._queries: LatestOnly[tuple[PoseStamped, float]] = LatestOnly()  # query, arrival
+        self._queries: LatestOnly[tuple[int, np.ndarray, float]] = LatestOnly()  # stamp, T_wc, arrival
         self._stop = threading.Event()
         self.create_subscription(PoseStamped, 'novel_view/query', self._on_query_msg, reliable_qos(100))
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
@@ -216,37 +216,9 @@ class ViewRenderer(Node):
         )
 
     def _on_query_msg(self, msg: PoseStamped) -> None:
-        """Hand the query to the render thread; one it has not started yet is superseded (counted)."""
-        old = self._queries.put((msg, time.perf_counter()))
-        if old is not None:
-            self.unanswered(
-                'superseded',
-                f'query {msg_utils.stamp_to_ns(old[0].header.stamp)} ns superseded by a newer one before it '
-                'was rendered (queries arrive faster than they render)',
-            )
-
-    def _serve(self) -> None:
-        while not self._stop.is_set():
-            item = self._queries.take(timeout=0.5)
-            if item is None or self._stop.is_set():
-                continue
-            try:
-                with self._lock:
-                    self.on_query(*item)
-            except Exception as exc:  # the thread survives any one query
-                if not self._stop.is_set():
-                    self.unanswered('render_error', f'query: {exc!r}')
-
-    def destroy_node(self) -> None:
-        self._stop.set()
-        self._queries.close()
-        self._worker.join(timeout=5.0)
-        super().destroy_node()
-
-    def on_query(self, msg: PoseStamped, t0: float | None = None) -> None:
-        """Render and publish the reply to one query that arrived at ``t0`` (perf_counter; the caller
-        holds the model lock)."""
-        t0 = time.perf_counter() if t0 is None else t0
+        """Check a query (cheap: no rendering) and hand it to the render thread; a query the thread has
+        not started yet is superseded by this one (counted)."""
+        t0 = time.perf_counter()
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
         if self.latest_camera is None:
             self.unanswered('no_model', f'query {stamp} ns: no keyframe with depth received yet')
@@ -257,14 +229,46 @@ class ViewRenderer(Node):
             return
         try:
             t_wc = msg_utils.pose_stamped_to_matrix(msg)
-            camera = self._out_camera()
         except BAD_MESSAGE as exc:
             self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
             return
+        if (reason := self.renderer.refusal(t_wc)) is not None:  # the model changes on this thread only
+            self.unanswered('unrenderable', f'query {stamp} ns: {reason}')
+            return
+        old = self._queries.put((stamp, t_wc, t0))
+        if old is not None:
+            self.unanswered(
+                'superseded',
+                f'query {old[0]} ns superseded by a newer one before it was rendered (queries arrive '
+                'faster than they render)',
+            )
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            item = self._queries.take(timeout=0.5)
+            if item is None or self._stop.is_set():
+                continue
+            try:
+                with self._lock:
+                    self._answer(*item)
+            except Exception as exc:  # the thread survives any one query
+                if not self._stop.is_set():
+                    self.unanswered('render_error', f'query {item[0]} ns: {exc!r}')
+
+    def destroy_node(self) -> None:
+        self._stop.set()
+        self._queries.close()
+        self._worker.join(timeout=5.0)
+        super().destroy_node()
+
+    def _answer(self, stamp: int, t_wc: np.ndarray, t0: float) -> None:
+        """Render and publish the reply to the query ``stamp`` that arrived at ``t0`` (perf_counter;
+        the caller holds the model lock)."""
         try:
+            camera = self._out_camera()
             out = self.renderer.render(t_wc, camera)
-        except Exception as exc:  # a renderer bug must not take the model down with it
-            self.unanswered('render_error', f'query {stamp} ns: {exc!r}')
+        except BAD_MESSAGE as exc:
+            self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
             return
         if out.reason is not None:
             self.unanswered('unrenderable', f'query {stamp} ns: {out.reason}')
