@@ -30,6 +30,8 @@ $(VENV)/.deps: requirements/constraints.txt requirements/runtime.txt requirement
 $(VENV)/.installed: $(VENV)/.deps $(SOURCES)
 	$(PIP) install -q --no-deps --no-build-isolation --force-reinstall .
 	@rm -rf build *.egg-info
+	@# Compile the nodes' numba kernels into the installed package's cache: first starts take seconds.
+	cd / && $(abspath $(BIN))/python -P -m ibr_ros.jobs.warmup
 	@touch $@
 
 venv: $(VENV)/.deps

@@ -24,7 +24,16 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ['GRAPH_NODES', 'Graph', 'NodeSpec', 'camera_topics', 'claim_domain', 'config_dir', 'node_command']
+__all__ = [
+    'GRAPH_NODES',
+    'Graph',
+    'NodeSpec',
+    'camera_topics',
+    'claim_domain',
+    'config_dir',
+    'die_with_parent',
+    'node_command',
+]
 
 LOG = logging.getLogger(__name__)
 
@@ -84,7 +93,7 @@ def claim_domain(first: int) -> tuple[int, socket.socket]:
     raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 (all lock ports are bound)')
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)
@@ -164,7 +173,7 @@ class Graph:
                 env=self.env,
                 stdout=out,
                 stderr=subprocess.STDOUT if out else None,
-                preexec_fn=_die_with_parent if sys.platform.startswith('linux') else None,
+                preexec_fn=die_with_parent if sys.platform.startswith('linux') else None,
             )
             if out is not None:
                 out.close()

@@ -116,7 +116,11 @@ def test_launch_file_starts_the_same_nodes(repo, monkeypatch):
         'wait_timeout_s': 0.0,
         'wait_topics': ['/camera/image_raw/compressed', '/camera/camera_info', '/camera/pose'],
     }
-    assert started[1]['parameters'][1] == {'image_transport': 'auto', 'pose_source': 'auto', 'scene_depth_m': 0.0}
+    assert started[1]['parameters'][1] == {
+        'image_transport': 'auto',
+        'pose_source': 'auto',
+        'scene_depth_m': 0.0,
+    }
     assert started[3]['parameters'][1] == {
         'max_neighbours': 4, 'scene_depth_m': 0.0, 'worker_index': 1, 'num_workers': 2
     }  # fmt: skip

@@ -36,7 +36,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from test_refiner_renderer_nodes import Proc
 
 import msg_utils
-from ibr_ros.core.live import FlightStatus, LatestOnly, PoseSource, ShardMembership
+from ibr_ros.core.live import FlightStatus, PoseSource, ShardMembership
 from ibr_ros.core.mvs import MvsView
 from ibr_ros.core.schedule import RefineScheduler, ScheduleConfig, shard_of
 from ibr_ros.core.stamps import StampAssembler
@@ -119,16 +119,6 @@ def test_scheduler_reassign_and_published_elsewhere():
     sched.published_elsewhere(stamps[-1] + 1)  # before the keyframe itself arrives
     sched.add(stamps[-1] + 1, sched.view(stamps[-1]))
     assert stamps[-1] + 1 not in sched.unrefined()
-
-
-def test_latest_only_supersedes():
-    slot: LatestOnly[int] = LatestOnly()
-    assert slot.put(1) is None
-    assert slot.put(2) == 1
-    assert slot.take(0.0) == 2
-    assert slot.take(0.0) is None
-    slot.close()
-    assert slot.take(10.0) is None  # returns at once
 
 
 def test_pending_frames_are_bounded_in_bytes():
@@ -285,12 +275,14 @@ def test_a_dead_shard_is_taken_over_and_the_model_outlives_its_publishers(repo, 
             node.destroy_publisher(p)
         w1 = _launch('depth_refiner', ros_env, 'worker_index:=1', *shard, '__node:=depth_refiner_1')
         assert spin_until(node, lambda: 'refiner workers alive: [0, 1]' in w0.text, 60), w0.text
+        rclpy.try_shutdown()
+        with in_process(ViewRenderer, repo / 'config' / 'view_renderer.yaml') as h:
+            assert h.wait(lambda: len(h.node.indices) == 4, 60), h.node.bad.counts
     finally:
         rclpy.try_shutdown()
-    with in_process(ViewRenderer, repo / 'config' / 'view_renderer.yaml') as h:
-        assert h.wait(lambda: len(h.node.indices) == 4, 60), h.node.bad.counts
-    w0.stop()
-    w1.stop()
+        for w in (w0, w1):
+            if w is not None:
+                w.stop()
     assert 'refined keyframe' not in w1.text, w1.text
     assert w0.text.count('refined keyframe') == 4
 
@@ -300,11 +292,14 @@ def test_nodes_stop_cleanly_on_sigterm_and_sigint(ros_env):
     for name in ('depth_refiner', 'view_renderer', 'frame_subsampler'):
         for sig in (signal.SIGTERM, signal.SIGINT):
             p = _launch(name, ros_env)
-            assert spin_lines(p, 'Traceback', lambda t, n=name: f'[{n}]' in t, 90), p.text
-            p.p.send_signal(sig)
-            assert p.p.wait(timeout=30) == 0, p.text
-            p.stop()
+            try:
+                assert spin_lines(p, 'Traceback', lambda t, n=name: f'[{n}]' in t, 90), p.text
+                p.p.send_signal(sig)
+                assert p.p.wait(timeout=30) == 0, p.text
+            finally:
+                p.stop()
             assert 'Traceback' not in p.text and '@     0x' not in p.text, p.text
+            assert p.text.rstrip().endswith('stopped'), p.text  # the one line saying so
 
 
 def spin_lines(p: Proc, bad: str, ok, timeout: float) -> bool:

@@ -44,6 +44,7 @@ from ibr_ros.core.geometry import R_BODY_FROM_OPTICAL, matrix_from_rt, rotation_
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.core.rephoto import score
 from ibr_ros.core.schedule import axis_scene_depth, shard_of
+from ibr_ros.graph import die_with_parent
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
 KEYFRAMES = tuple(range(0, 192, 24))  # 8 frames, all multiples of 3 (stored GT depth)
@@ -56,7 +57,14 @@ class Proc:
     """A node process whose output lines are collected by a reader thread."""
 
     def __init__(self, argv: list[str], env: dict[str, str]) -> None:
-        self.p = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.p = subprocess.Popen(  # a node outlives no test run, even a killed one
+            argv,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            preexec_fn=die_with_parent,
+        )
         self.lines: list[str] = []
         self._t = threading.Thread(target=self._read, daemon=True)
         self._t.start()

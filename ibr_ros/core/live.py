@@ -6,16 +6,12 @@
   stream state, frame and keyframe counts), as string key-values for ``diagnostic_msgs/KeyValue``.
 - :class:`ShardMembership`: which sharded refiners are alive (their heartbeats within a lease) and
   which of them owns a keyframe: a dead worker's keyframes go to the live ones.
-- :class:`LatestOnly`: a one-slot hand-over from a fast producer to a slow consumer; a newer item
-  supersedes the one not taken yet (the caller counts it), so an overloaded consumer works newest first.
 """
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields
-from typing import Generic, TypeVar
 
 from ibr_ros.core.schedule import shard_of
 
@@ -23,7 +19,6 @@ __all__ = [
     'CAMERA_STATES',
     'POSE_MODES',
     'FlightStatus',
-    'LatestOnly',
     'PoseSource',
     'ShardMembership',
 ]
@@ -34,8 +29,6 @@ POSE_MODES = ('auto', 'topic', 'none')
 
 #: States of the camera stream: no publisher yet, publishing, every publisher gone (the end of a bag).
 CAMERA_STATES = ('waiting', 'streaming', 'ended')
-
-T = TypeVar('T')
 
 
 class PoseSource:
@@ -167,33 +160,3 @@ class ShardMembership:
         if base in live or not live:
             return base
         return live[shard_of(stamp_ns, len(live))]
-
-
-class LatestOnly(Generic[T]):
-    """One slot between threads: :meth:`put` replaces (and returns) an item not taken yet."""
-
-    def __init__(self) -> None:
-        self._item: T | None = None
-        self._cond = threading.Condition()
-        self._closed = False
-
-    def put(self, item: T) -> T | None:
-        """Offer ``item``; the older item it superseded, or None."""
-        with self._cond:
-            old, self._item = self._item, item
-            self._cond.notify()
-            return old
-
-    def take(self, timeout: float | None = None) -> T | None:
-        """The newest item (and empty the slot), waiting up to ``timeout`` s; None if none or closed."""
-        with self._cond:
-            if self._item is None and not self._closed:
-                self._cond.wait(timeout)
-            item, self._item = self._item, None
-            return item
-
-    def close(self) -> None:
-        """Wake a waiting :meth:`take` for good (it returns what is left, then None)."""
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()

@@ -191,6 +191,16 @@ def spin_forever(node: Node) -> int:
     return 0
 
 
+def _quiet_half_built(unraisable: Any) -> None:
+    """``sys.unraisablehook`` that drops the AttributeError rclpy's ``__del__`` methods raise for an
+    object whose ``__init__`` a shutdown interrupted (Executor, RcutilsLogger); reports the rest."""
+    obj = getattr(unraisable, 'object', None)
+    owner = getattr(obj, '__qualname__', '')
+    if isinstance(unraisable.exc_value, AttributeError) and owner.endswith('__del__') and not rclpy.ok():
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def run_node(
     factory: Callable[[], Node],
     args: Sequence[str] | None = None,
@@ -209,8 +219,10 @@ def run_node(
         # that no KeyboardInterrupt tears through a half-built node; spin then ends by itself.
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: None)
+    sys.unraisablehook = _quiet_half_built
     try:
         rclpy.init(args=list(args) if args is not None else None)
+        rclpy.get_global_executor()  # now, before a signal can shut the context down under it
     except RCLError as exc:
         print(f'{name}: {exc}', file=sys.stderr)
         return EXIT_BAD_CONFIG
@@ -222,20 +234,19 @@ def run_node(
         except (UserError, ValueError, ParameterException) as exc:
             rclpy.logging.get_logger(name).error(f'cannot start: {exc}')
             return EXIT_BAD_CONFIG
-        except RCLError:
-            if rclpy.ok():
-                raise
-            return 0  # stopped by a signal while the node was being built
         code = spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:  # the context was shut down (a signal) while the node or its executor was built
+        if rclpy.ok():
+            raise
     finally:
         stopped = not rclpy.ok()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    if stopped:
-        print(f'{name}: shut down by a signal or shutdown request, stopped', file=sys.stderr)
+        if stopped:
+            print(f'{name}: shut down by a signal or shutdown request, stopped', file=sys.stderr)
     return code
 
 

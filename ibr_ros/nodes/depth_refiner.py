@@ -102,6 +102,7 @@ from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, pa
 from ibr_ros.core.sfm import SfmError
 from ibr_ros.core.sfm_session import SfmSession
 from ibr_ros.errors import UserError
+from ibr_ros.jobs.warmup import warm_up_refiner
 from ibr_ros.node_config import refiner_config, sfm_settings
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
@@ -291,6 +292,10 @@ class DepthRefinerNode(Node):
         self.debug = {
             n: self.create_publisher(Image, n, reliable_qos()) for n in DEBUG_TOPICS if self.publish_debug
         }
+        if bool(p('warmup', True, 'run MVS and refinement on a tiny scene at start-up (kernels load once)')):
+            self.get_logger().info(
+                f'warm-up MVS + refinement in {warm_up_refiner(self.mvs, self.refiner):.2f} s'
+            )
         self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
         self._worker.start()
         self.get_logger().info(

@@ -17,9 +17,10 @@ Output intrinsics: ``width`` x ``height`` with ``hfov_deg``; each 0 takes the la
 (all three 0: the keyframe camera itself, distortion dropped). They may be changed at run time
 (``ros2 param set``, ``ibr query --width/--height/--hfov``).
 
-Queries are rendered on a worker thread, newest first: a query that arrives while another one is
-rendered replaces the one still waiting, which is counted (``superseded``) and logged, so an
-overloaded renderer answers the latest pose instead of falling ever further behind. A query is
+Queries are answered newest first: before rendering, the node takes every query already waiting in
+its subscription; each is checked (no model, another frame, invalid or unrenderable pose: counted
+by reason) and only the newest renderable one is rendered, the others counted as ``superseded`` and
+logged, so an overloaded renderer answers the latest pose instead of falling ever further behind. A query is
 answered only when at least ``min_valid_fraction`` of the pixels were rendered.
 Unanswerable queries (no model yet, invalid pose, another frame, farther than the renderer's
 distance limit, facing away from every view, too incomplete) get no reply: each is counted per
@@ -29,9 +30,7 @@ reason and logged (throttled per reason), so a client times out.
 from __future__ import annotations
 
 import sys
-import threading
 import time
-from dataclasses import replace
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -42,9 +41,8 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.live import LatestOnly
 from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.jobs.warmup import warm_up_renderer
 from ibr_ros.node_config import RENDER_PARAMETERS, render_config
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
@@ -111,17 +109,14 @@ class ViewRenderer(Node):
             (Image, 'depth', lambda m: np.array(msg_utils.depth_image_to_m(m))),
         ):
             subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
-        self._lock = threading.Lock()  # the model: changed by the executor, read by the query thread
-        self._queries: LatestOnly[tuple[int, np.ndarray, float]] = LatestOnly()  # stamp, T_wc, arrival
-        self._stop = threading.Event()
-        self.create_subscription(PoseStamped, 'novel_view/query', self._on_query_msg, reliable_qos(100))
+        self._query_sub = self.create_subscription(
+            PoseStamped, 'novel_view/query', self._on_query_msg, reliable_qos(100)
+        )
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
         self.add_on_set_parameters_callback(self._on_params)
         if bool(p('warmup', True, 'render a tiny scene at start-up (JIT-compiled kernels load once)')):
             self._warmup()
-        self._worker = threading.Thread(target=self._serve, name='view_renderer_queries', daemon=True)
-        self._worker.start()
 
     def _on_params(self, params: list[Parameter]) -> SetParametersResult:
         """Adopt new output intrinsics; rclpy has already checked them against their declared ranges."""
@@ -132,21 +127,11 @@ class ViewRenderer(Node):
         return SetParametersResult(successful=True)
 
     def _warmup(self) -> None:
-        t0 = time.perf_counter()
-        cam = PinholeCamera.from_fov(64, 48, 60.0)
-        rng = np.random.default_rng(0)
-        rgb = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
-        t_wc = look_at([0.0, -10.0, 5.0], [0.0, 0.0, 0.0])
-        view = SourceView(rgb, np.full((48, 64), 11.0, np.float32), cam, t_wc)
-        NovelViewRenderer([view], replace(self.config, n_segments=30)).render(t_wc, cam)
-        self.get_logger().info(f'warm-up render in {time.perf_counter() - t0:.2f} s')
+        seconds = warm_up_renderer(self.config)
+        self.get_logger().info(f'warm-up render in {seconds:.2f} s')
 
     # -- model ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
-        with self._lock:
-            self._put_locked(stamp, field, value)
-
-    def _put_locked(self, stamp: int, field: str, value: object) -> None:
         if field == 'depth' and not (np.isfinite(value) & (value > 0)).any():  # type: ignore[operator]
             self.bad('depth_unknown', f'keyframe {stamp} ns: a depth with no known value, rejected')
             return
@@ -216,59 +201,56 @@ class ViewRenderer(Node):
         )
 
     def _on_query_msg(self, msg: PoseStamped) -> None:
-        """Check a query (cheap: no rendering) and hand it to the render thread; a query the thread has
-        not started yet is superseded by this one (counted)."""
+        """Answer the newest renderable query of those waiting (see module docstring)."""
+        newest = self._check(msg)
+        while True:  # the queries that arrived meanwhile, oldest first
+            with self._query_sub.handle:
+                taken = self._query_sub.handle.take_message(PoseStamped, False)
+            if taken is None:
+                break
+            if (query := self._check(taken[0])) is None:
+                continue
+            if newest is not None:
+                self.unanswered(
+                    'superseded',
+                    f'query {newest[0]} ns superseded by a newer one before it was rendered (queries '
+                    'arrive faster than they render)',
+                )
+            newest = query
+        if newest is not None:
+            self._answer(*newest)
+
+    def _check(self, msg: PoseStamped) -> tuple[int, np.ndarray, float] | None:
+        """``(stamp, T_wc, arrival)`` of a query that can be rendered; else None (counted by reason)."""
         t0 = time.perf_counter()
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
         if self.latest_camera is None:
             self.unanswered('no_model', f'query {stamp} ns: no keyframe with depth received yet')
-            return
+            return None
         frame = msg.header.frame_id or self.model_frame
         if frame != self.model_frame:
             self.unanswered('frame', f'query {stamp} ns is in {frame!r}, the model in {self.model_frame!r}')
-            return
+            return None
         try:
             t_wc = msg_utils.pose_stamped_to_matrix(msg)
         except BAD_MESSAGE as exc:
             self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
-            return
-        if (reason := self.renderer.refusal(t_wc)) is not None:  # the model changes on this thread only
+            return None
+        if (reason := self.renderer.refusal(t_wc)) is not None:
             self.unanswered('unrenderable', f'query {stamp} ns: {reason}')
-            return
-        old = self._queries.put((stamp, t_wc, t0))
-        if old is not None:
-            self.unanswered(
-                'superseded',
-                f'query {old[0]} ns superseded by a newer one before it was rendered (queries arrive '
-                'faster than they render)',
-            )
-
-    def _serve(self) -> None:
-        while not self._stop.is_set():
-            item = self._queries.take(timeout=0.5)
-            if item is None or self._stop.is_set():
-                continue
-            try:
-                with self._lock:
-                    self._answer(*item)
-            except Exception as exc:  # the thread survives any one query
-                if not self._stop.is_set():
-                    self.unanswered('render_error', f'query {item[0]} ns: {exc!r}')
-
-    def destroy_node(self) -> None:
-        self._stop.set()
-        self._queries.close()
-        self._worker.join(timeout=5.0)
-        super().destroy_node()
+            return None
+        return stamp, t_wc, t0
 
     def _answer(self, stamp: int, t_wc: np.ndarray, t0: float) -> None:
-        """Render and publish the reply to the query ``stamp`` that arrived at ``t0`` (perf_counter;
-        the caller holds the model lock)."""
+        """Render and publish the reply to the query ``stamp`` that arrived at ``t0`` (perf_counter)."""
         try:
             camera = self._out_camera()
             out = self.renderer.render(t_wc, camera)
         except BAD_MESSAGE as exc:
             self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
+            return
+        except Exception as exc:  # a renderer bug must not take the model down with it
+            self.unanswered('render_error', f'query {stamp} ns: {exc!r}')
             return
         if out.reason is not None:
             self.unanswered('unrenderable', f'query {stamp} ns: {out.reason}')
