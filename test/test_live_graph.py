@@ -87,8 +87,11 @@ def test_flight_status_round_trip_and_errors():
 def test_shard_membership_takes_over_dead_workers():
     m = ShardMembership(3, 0, lease_s=3.0, now=100.0)
     assert m.live(101.0) == (0, 1, 2)  # never heard of yet: presumed alive at start-up
+    assert not m.synced(101.0)  # ... so this worker waits to hear what they refined
     m.heard(1, 102.0)
+    assert not m.synced(102.5)
     assert m.live(104.0) == (0, 1)  # worker 2 never spoke within the lease
+    assert m.synced(104.0)
     assert m.live(105.5) == (0,)  # worker 1 went silent
     stamps = range(10**9, 10**9 + 300 * 7919, 7919)
     assert all(m.owner(s, (0,)) == 0 for s in stamps)
