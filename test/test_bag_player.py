@@ -403,5 +403,5 @@ def test_transient_local_topics_reach_a_late_subscriber(ros_env, ros, tmp_path):
     assert (
         'QoS: /keyframes/image: reliable transient_local depth 1000 (recorded), '
         '/keyframes/pose: reliable transient_local depth 5 (recorded), '
-        '/novel_view/query: reliable volatile depth 100 (recorded)'
+        '/novel_view/query: reliable volatile depth 8 (recorded, flow_window at rate 0)'
     ) in out, out

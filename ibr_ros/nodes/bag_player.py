@@ -35,8 +35,8 @@ that takes). Publishers of image topics are created last, so a subscriber that d
 player's image publisher already knows its other topics (DDS announces endpoints in order).
 DDS repairs what a reliable subscriber missed (within a heartbeat period, 3 s with Fast DDS) as long
 as the publisher still holds it: at rate > 0 ``qos_depth`` should cover a few seconds of each topic;
-at rate 0 the player waits for acknowledgements before it would overwrite an unacknowledged message,
-so reliable subscribers receive everything. The process exits 0 when the bag is done (unless
+at rate 0 the player lets at most ``flow_window`` messages per topic go unacknowledged, so reliable
+subscribers receive everything and the topics stay within that window of each other. The process exits 0 when the bag is done (unless
 ``loop``), after reliable subscribers acknowledged everything or ``ack_timeout_s``; a bag or parameter
 that cannot be used is one error line and exit code 2.
 """
@@ -229,6 +229,9 @@ class BagPlayer(Node):
         self.wait_timeout = float(p('wait_timeout_s', 30.0, '... or after this long; 0 = never', **big))
         wait_topics = p('wait_topics', Parameter.Type.STRING_ARRAY, 'topics to wait for; empty = all')
         self.depth = int(p('qos_depth', 100, 'history depth of the volatile publishers', limits=(1, 1000000)))
+        self.window = int(
+            p('flow_window', 8, 'rate 0: unacknowledged messages per topic at most', limits=(1, 1000000))
+        )
         use_recorded = bool(p('use_recorded_qos', True, 'offer the QoS recorded in the bag'))
         max_durable = int(p('max_durable_depth', 1000, 'most transient-local history', limits=(1, 1000000)))
         topic_qos = p('topic_qos', Parameter.Type.STRING_ARRAY, "'TOPIC:=POLICY,...' QoS of bag topics")
@@ -269,6 +272,9 @@ class BagPlayer(Node):
                 use_recorded=use_recorded,
                 override=overrides.get(topic),
             )
+            if self.rate == 0 and qos.durability == 'volatile' and qos.depth > self.window:
+                # A full history makes Fast DDS ask for acknowledgements with every message.
+                qos = replace(qos, depth=self.window, source=f'{qos.source}, flow_window at rate 0')
             qos_log.append(f'{topic}: {qos}' + (f'; {note}' if note else ''))
             cls = message_class(info.msgtype)
             name = remap.get(topic, topic)
@@ -462,14 +468,14 @@ class BagPlayer(Node):
         )
 
     def _flow_control(self, out: _Out) -> None:
-        """At rate 0: never overwrite a message that a reliable subscriber has not acknowledged.
-
-        Fast DDS asks for acknowledgements with every message once the history is full (else every
-        3 s), so waiting when the topic's depth of messages may be unacknowledged costs milliseconds.
+        """At rate 0: at most ``flow_window`` (and never more than the history depth) messages of a
+        topic unacknowledged, so a reliable subscriber loses nothing and its topics stay within a
+        window of each other (a subscriber matching them by stamp holds only that many pending).
         """
-        if out.unacked >= out.depth // 2 and out.publisher.wait_for_all_acked(Duration()):
+        limit = min(out.depth, self.window)
+        if out.unacked >= max(1, limit // 2) and out.publisher.wait_for_all_acked(Duration()):
             out.unacked = 0  # all acknowledged: cheap check, no wait
-        if out.unacked < out.depth:
+        if out.unacked < limit:
             return
         if not self._acked(out, self.ack_timeout) and not self.stopping.is_set():
             self.get_logger().warning(
