@@ -26,19 +26,19 @@ copy of array data: ~0.04 ms for a 640x360 rgb8 Image), others with rclpy. The r
 stricter than Fast CDR on three points, also skipped: strings without terminator or not UTF-8, and
 more than 3 bytes after the message.
 
-Messages are paced on the wall clock: bag time since ``start_offset``, divided by ``rate``
-(0 = as fast as possible). ``/clock`` (``rosgraph_msgs/Clock``) carries the playback's bag time at
+Messages are paced on the wall clock: bag time since ``start_offset``, divided by ``rate`` (0 = as
+fast as possible). ``/clock`` (``rosgraph_msgs/Clock``) carries the playback's bag time at
 ``clock_rate_hz``, never ahead of the next message, so nodes can run with ``use_sim_time``. With
 ``wait_for_subscribers`` > 0 playback starts once every topic of ``wait_topics`` (published names;
 empty = every played topic) has that many matched subscriptions (``wait_timeout_s`` 0: however long
 that takes). Publishers of image topics are created last, so a subscriber that discovers this
-player's image publisher already knows its other topics (DDS announces endpoints in order).
-DDS repairs what a reliable subscriber missed (within a heartbeat period, 3 s with Fast DDS) as long
-as the publisher still holds it: at rate > 0 ``qos_depth`` should cover a few seconds of each topic;
-at rate 0 the player lets at most ``flow_window`` messages per topic go unacknowledged, so reliable
-subscribers receive everything and the topics stay within that window of each other. The process exits 0 when the bag is done (unless
-``loop``), after reliable subscribers acknowledged everything or ``ack_timeout_s``; a bag or parameter
-that cannot be used is one error line and exit code 2.
+player's image publisher already knows its other topics (DDS announces endpoints in order). DDS
+repairs what a reliable subscriber missed (within a heartbeat period, 3 s with Fast DDS) as long as
+the publisher still holds it: at rate > 0 ``qos_depth`` should cover a few seconds of each topic; at
+rate 0 the player lets at most ``flow_window`` messages per topic go unacknowledged, so reliable
+subscribers receive everything and the topics stay within that window of each other. The process
+exits 0 when the bag is done (unless ``loop``), after reliable subscribers acknowledged everything
+or ``ack_timeout_s``; a bag or parameter that cannot be used is one error line and exit code 2.
 """
 
 from __future__ import annotations
