@@ -365,7 +365,8 @@ class DepthRefinerNode(Node):
             self.pose_frames[stamp] = pose_frame
             self._version += 1
             self._last_arrival = time.monotonic()
-        self._mirror(stamp)  # another worker's depth may have come first
+        if self.mirror:
+            self._mirror(stamp)  # another worker's depth may have come first
         self._wake.set()
 
     # -- SfM mode -------------------------------------------------------------------------------
@@ -445,8 +446,10 @@ class DepthRefinerNode(Node):
             with self._lock:
                 self.schedule.published_elsewhere(stamp)
         rec[topic] = msg
-        if len(rec) == 2:
+        if len(rec) == 2 and self.mirror:
             self._mirror(stamp)
+        elif len(rec) == 2:
+            self._others.pop(stamp, None)  # noted (published_elsewhere); not mirrored
 
     def _mirror(self, stamp: int) -> None:
         """Republish another worker's depth (and its keyframe) once both and the keyframe are here."""
