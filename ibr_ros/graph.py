@@ -63,15 +63,37 @@ def config_dir() -> Path:
     return checkout
 
 
-def camera_topics(bag: Path | str) -> list[str]:
-    """The topics of ``bag`` that the frame_subsampler subscribes with its defaults (``camera/image_raw``,
-    else ``camera/image_raw/compressed``; ``camera/camera_info``; ``camera/pose``), as recorded."""
+#: frame_subsampler ``image_transport`` -> the bag image topics it would subscribe, preferred first.
+_IMAGE_TOPICS = {
+    'auto': ('/camera/image_raw', '/camera/image_raw/compressed'),
+    'raw': ('/camera/image_raw',),
+    'compressed': ('/camera/image_raw/compressed',),
+}
+
+
+def camera_topics(bag: Path | str, image_transport: str = 'auto', pose_source: str = 'auto') -> list[str]:
+    """The topics of ``bag`` that a frame_subsampler with these settings subscribes (in the root
+    namespace, unremapped): its image topic, ``/camera/camera_info`` and, unless ``pose_source`` is
+    ``none``, ``/camera/pose``; what the bag_player's ``wait_topics`` should name.
+
+    Raises:
+        UserError: The bag has none of the image topics that ``image_transport`` takes.
+
+    """
     from ibr_ros.bag import open_bag
+    from ibr_ros.errors import UserError
 
     with open_bag(bag) as reader:
         names = set(reader.topics)
-    image = [t for t in ('/camera/image_raw', '/camera/image_raw/compressed') if t in names][:1]
-    return image + [t for t in ('/camera/camera_info', '/camera/pose') if t in names]
+    wanted = _IMAGE_TOPICS.get(image_transport, _IMAGE_TOPICS['auto'])
+    image = [t for t in wanted if t in names][:1]
+    if not image:
+        raise UserError(
+            f'{bag}: no {" or ".join(wanted)} topic for the frame_subsampler (image_transport '
+            f'{image_transport}); remap the camera topics of the bag (bag_player remap)'
+        )
+    others = ('/camera/camera_info',) + (('/camera/pose',) if pose_source != 'none' else ())
+    return image + [t for t in others if t in names]
 
 
 def claim_domain(first: int) -> tuple[int, socket.socket]:
@@ -93,10 +115,20 @@ def claim_domain(first: int) -> tuple[int, socket.socket]:
     raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 (all lock ports are bound)')
 
 
+def _libc_prctl() -> object:
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):  # not Linux
+        return None
+
+
+_PRCTL = _libc_prctl()  # looked up here: the child between fork and exec only calls it
+
+
 def die_with_parent() -> None:
     """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)
+    if _PRCTL is not None:
+        _PRCTL(1, signal.SIGTERM, 0, 0, 0)  # type: ignore[operator]
 
 
 def _ros_value(value: object) -> str:

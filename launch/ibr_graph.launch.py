@@ -45,7 +45,7 @@ def _nodes(context, *args, **kwargs):
             'rate': float(arg['rate']),
             'wait_for_subscribers': 1,
             'wait_timeout_s': 0.0,
-            'wait_topics': camera_topics(bag),
+            'wait_topics': camera_topics(bag, arg['image_transport'], arg['pose_source']),
         }
         actions.append(
             Node(package='ibr_ros', executable='bag_player', name='bag_player',

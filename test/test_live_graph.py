@@ -66,10 +66,12 @@ def test_pose_source_is_decided_by_the_graph_not_a_timer():
     assert not auto.frame_ready(pose_publishers=0) and auto.state == 'pose'  # decided once
     none = PoseSource('auto')
     assert none.frame_ready(pose_publishers=0) and none.state == 'none'
-    assert none.pose_arrived() and none.state == 'pose'  # a pose that comes later wins
+    assert not none.pose_arrived() and none.ignores_poses  # decided for the flight
+    early = PoseSource('auto')
+    assert early.pose_arrived() and early.state == 'pose'
     assert PoseSource('topic').state == 'pose'
     ignore = PoseSource('none')
-    assert not ignore.pose_arrived() and ignore.state == 'none'
+    assert not ignore.pose_arrived() and ignore.ignores_poses
     with pytest.raises(ValueError, match='parameter pose_source'):
         PoseSource('sometimes')
 

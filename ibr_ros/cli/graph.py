@@ -40,7 +40,11 @@ def build_specs(args: argparse.Namespace) -> list:
             # Playback starts once the frame_subsampler listens: nothing of the flight is lost.
             'wait_for_subscribers': 1,
             'wait_timeout_s': 0.0,
-            'wait_topics': camera_topics(args.bag),
+            'wait_topics': camera_topics(
+                args.bag,
+                str(sets.get('frame_subsampler', {}).get('image_transport', 'auto')),
+                str(sets.get('frame_subsampler', {}).get('pose_source', 'auto')),
+            ),
         }
         specs.append(NodeSpec('bag_player', {**params, **sets.pop('bag_player', {})}))
     specs.append(NodeSpec('frame_subsampler', sets.pop('frame_subsampler', {})))

@@ -36,8 +36,10 @@ class PoseSource:
 
     In ``auto`` the state is decided when the first frame (image + camera_info) is complete: ``pose``
     when the pose topic has a publisher then (the frame waits for its pose, however late), else
-    ``none``. A pose that arrives later switches to ``pose`` for good. ``topic`` is ``pose`` from the
-    start, ``none`` is ``none`` and ignores poses.
+    ``none``; a pose arriving before that decides ``pose``. Decided, it holds for the flight: a pose
+    arriving after ``none`` is ignored (the caller counts it), since the keyframes without poses are
+    registered in an SfM frame of their own. ``topic`` is ``pose`` from the start, ``none`` is
+    ``none`` and ignores poses.
     """
 
     def __init__(self, mode: str) -> None:
@@ -47,11 +49,16 @@ class PoseSource:
         self.state = {'auto': 'unknown', 'topic': 'pose', 'none': 'none'}[mode]
 
     def pose_arrived(self) -> bool:
-        """A pose message arrived; True when that changed the state."""
-        if self.mode == 'none' or self.state == 'pose':
+        """A pose message arrived; True when that decided the state (see :attr:`ignores_poses`)."""
+        if self.state != 'unknown':
             return False
         self.state = 'pose'
         return True
+
+    @property
+    def ignores_poses(self) -> bool:
+        """Whether arriving poses are dropped (the flight is without poses)."""
+        return self.state == 'none'
 
     def frame_ready(self, pose_publishers: int) -> bool:
         """A frame's image and camera_info are there without a pose; True when that decided the state."""

@@ -382,10 +382,16 @@ class BagPlayer(Node):
             return
         self.get_logger().info(f'waiting for {self.wait_for} subscription(s) on every topic')
         deadline = time.monotonic() + self.wait_timeout if self.wait_timeout > 0 else float('inf')
+        next_note = time.monotonic() + 10.0
         while not self.stopping.is_set():
             short = [o.name for o in self.wait_outs if o.publisher.get_subscription_count() < self.wait_for]
             if not short:
                 return
+            if time.monotonic() >= next_note:  # a wait without end says what it waits for
+                next_note += 10.0
+                self.get_logger().info(
+                    f'still waiting for {self.wait_for} subscription(s) on {", ".join(short)}'
+                )
             if time.monotonic() > deadline:
                 self.get_logger().warning(
                     f'starting after {self.wait_timeout:g} s; too few subscriptions on {", ".join(short)}'

@@ -247,8 +247,7 @@ class DepthRefinerNode(Node):
         self._ended = False  # the camera stream ended: flush
         self._published: set[int] = set()  # stamps whose depth this process published (own or mirrored)
         self._others: dict[int, dict[str, object]] = {}  # depth messages of other workers, by stamp
-        self.members = ShardMembership(self.num_workers, self.worker_index, lease, time.monotonic())
-        self._live = self.members.live(time.monotonic())
+        self._lease = lease
         qos = model_qos()
         for msg_type, field, convert in (
             (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),  # a copy, detached from m
@@ -296,6 +295,9 @@ class DepthRefinerNode(Node):
             self.get_logger().info(
                 f'warm-up MVS + refinement in {warm_up_refiner(self.mvs, self.refiner):.2f} s'
             )
+        # The lease starts now, after the warm-up (tens of seconds when the kernels are not cached yet).
+        self.members = ShardMembership(self.num_workers, self.worker_index, self._lease, time.monotonic())
+        self._live = self.members.live(time.monotonic())
         self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -365,8 +367,7 @@ class DepthRefinerNode(Node):
             self.pose_frames[stamp] = pose_frame
             self._version += 1
             self._last_arrival = time.monotonic()
-        if self.mirror:
-            self._mirror(stamp)  # another worker's depth may have come first
+        self._mirror(stamp)  # another worker's depth may have come first
         self._wake.set()
 
     # -- SfM mode -------------------------------------------------------------------------------
@@ -430,10 +431,6 @@ class DepthRefinerNode(Node):
     def _on_depth(self, topic: str, msg: Image | CameraInfo) -> None:
         """Depth (or its camera_info) on keyframes/depth: another worker's is noted and mirrored once."""
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
-        with self._lock:
-            if stamp in self._published:
-                return  # this process's own (or already mirrored)
-        rec = self._others.setdefault(stamp, {})
         if topic == 'keyframes/depth':
             try:
                 depth = msg_utils.depth_image_to_m(msg)
@@ -443,13 +440,21 @@ class DepthRefinerNode(Node):
             if not (np.isfinite(depth) & (depth > 0)).any():
                 self.bad('depth', f'keyframes/depth at {stamp} ns has no known value: ignored')
                 return
-            with self._lock:
+        with self._lock:
+            if stamp in self._published:
+                self._others.pop(stamp, None)
+                return  # this process's own (or already mirrored)
+            if topic == 'keyframes/depth':
                 self.schedule.published_elsewhere(stamp)
-        rec[topic] = msg
-        if len(rec) == 2 and self.mirror:
-            self._mirror(stamp)
-        elif len(rec) == 2:
-            self._others.pop(stamp, None)  # noted (published_elsewhere); not mirrored
+            if not self.mirror:
+                return  # noted; nothing to mirror
+            rec = self._others.setdefault(stamp, {})
+            rec[topic] = msg
+            while len(self._others) > self.max_pending:  # e.g. depth of keyframes this one never gets
+                dropped = min(self._others)
+                del self._others[dropped]
+                self.bad('mirror', f'depth at {dropped} ns not mirrored: its keyframe did not arrive')
+        self._mirror(stamp)
 
     def _mirror(self, stamp: int) -> None:
         """Republish another worker's depth (and its keyframe) once both and the keyframe are here."""
@@ -654,6 +659,9 @@ class DepthRefinerNode(Node):
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
         with self._lock:
             first = job.stamp not in self._published
+            if not first and not job.again:  # another worker's depth came (and was mirrored) meanwhile
+                self.get_logger().info(f'keyframe {job.stamp} ns: refined by another worker meanwhile')
+                return True
             self._published.add(job.stamp)
             self._others.pop(job.stamp, None)
         self.pub_depth.publish(msg_utils.depth_m_to_image(r.depth, header))

@@ -33,8 +33,9 @@ poses; ``none`` ignores them. Without poses the sharpest unblurred frame of ever
 ``poseless_interval_s`` window of stamps is a keyframe (:class:`ibr_ros.core.keyframes.IntervalSelector`;
 a window's keyframe is published when the next window starts or the camera stream ends), published
 on ``keyframes/image`` and ``keyframes/camera_info`` only; the depth_refiner registers them (its SfM
-mode). A pose that arrives later switches to pose-based selection for good. No timer decides any of
-this: a live drone whose pose node starts after its camera should use ``pose_source: topic``.
+mode). The decision holds for the flight: poses arriving later are counted (``pose_ignored``) and
+dropped. No timer decides any of this: a live drone whose pose node may start after its camera
+should use ``pose_source: topic``.
 """
 
 from __future__ import annotations
@@ -260,9 +261,13 @@ class FrameSubsampler(Node):
 
     def _put(self, stamp: int, field: str, value: object) -> None:
         self._images += field == 'image'
-        if field == 'pose' and self.pose_source.pose_arrived():
-            self.get_logger().warning('camera/pose arrives: keyframes are selected by pose from now on')
-            self._publish_status()
+        if field == 'pose':
+            if self.pose_source.ignores_poses:
+                self.bad('pose_ignored', f'camera/pose at {stamp} ns: this flight has no poses (decided at '
+                         "its first frame; pose_source 'topic' waits for them)")  # fmt: skip
+                return
+            if self.pose_source.pose_arrived():
+                self._publish_status()
         if (f := self.frames.put(stamp, field, value)) is None:
             partial = self.frames.partial(stamp)
             if field != 'pose' and 'image' in partial and 'camera_info' in partial:
@@ -286,8 +291,8 @@ class FrameSubsampler(Node):
 
     def _frame_without_pose(self, stamp: int, partial: dict) -> None:
         """Image and camera_info of ``stamp`` are there, its pose is not (yet)."""
-        pose_topic = self.subscribed.get('pose')
-        publishers = self.count_publishers(pose_topic) if pose_topic else 0
+        pose_topic = 'camera/pose' if 'pose' in self._inputs else None  # not just once subscribed
+        publishers = self.count_publishers(self.resolve_topic_name(pose_topic)) if pose_topic else 0
         if self.pose_source.frame_ready(publishers):
             state = self.pose_source.state
             self.get_logger().info(

@@ -125,7 +125,8 @@ def process_bag(
     # Everything goes into a staging folder next to out, renamed to out once complete: an
     # interrupted or failed run leaves the previous result as it was.
     stage = out.parent / f'.{out.name}.partial-{os.getpid()}'
-    shutil.rmtree(stage, ignore_errors=True)
+    if out.parent.is_dir():
+        _remove_stale_stages(out)
     stage.mkdir(parents=True)
     try:
         model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
@@ -218,12 +219,28 @@ def _check_out(out: Path, overwrite: bool) -> None:
 
 
 def _commit(stage: Path, out: Path) -> None:
-    """Put the complete ``stage`` in place of ``out`` (two renames; the old result is removed last)."""
+    """Put the complete ``stage`` in place of ``out`` (two renames; the old result is removed last,
+    and put back if the second rename fails)."""
     old = out.parent / f'.{out.name}.old-{os.getpid()}'
     if out.exists():
         out.rename(old)
-    stage.rename(out)
+    try:
+        stage.rename(out)
+    except OSError:
+        if old.exists():
+            old.rename(out)
+        raise
     shutil.rmtree(old, ignore_errors=True)
+
+
+def _remove_stale_stages(out: Path) -> None:
+    """Staging and old-result folders of earlier runs for ``out`` whose process is gone."""
+    for p in out.parent.glob(f'.{out.name}.*-*'):
+        kind, _, pid = p.name.rpartition('-')
+        if not kind.endswith(('.partial', '.old')) or not pid.isdigit():
+            continue
+        if not Path(f'/proc/{pid}').exists() or int(pid) == os.getpid():
+            shutil.rmtree(p, ignore_errors=True)
 
 
 def _set_threads(threads: int | None) -> int:
