@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import sys
 import types
 
@@ -125,3 +126,26 @@ def test_launch_file_starts_the_same_nodes(repo, monkeypatch):
         'max_neighbours': 4, 'scene_depth_m': 0.0, 'worker_index': 1, 'num_workers': 2
     }  # fmt: skip
     assert all(n['package'] == 'ibr_ros' for n in started)
+
+
+def test_camera_topics_follow_the_subsampler_settings(repo, tmp_path):
+    from ibr_ros.graph import camera_topics
+
+    bag = repo / 'bags' / 'synth_orbit_s0'
+    assert camera_topics(bag, 'auto', 'none') == ['/camera/image_raw/compressed', '/camera/camera_info']
+    with pytest.raises(UserError, match='no /camera/image_raw topic'):
+        camera_topics(bag, 'raw')
+
+
+def test_ibr_process_removes_stale_staging_folders(tmp_path):
+    from ibr_ros.jobs.process import _remove_stale_stages
+
+    out = tmp_path / 'o'
+    dead, live = tmp_path / '.o.partial-999999999', tmp_path / f'.o.old-{os.getppid()}'
+    other = tmp_path / '.other.partial-999999999'
+    for p in (dead, live, other):
+        p.mkdir()
+    _remove_stale_stages(out)
+    assert not dead.exists()
+    assert live.exists()  # a running process's
+    assert other.exists()  # another output's
