@@ -33,6 +33,7 @@ __all__ = [
     'config_dir',
     'die_with_parent',
     'node_command',
+    'wait_for_subsampler',
 ]
 
 LOG = logging.getLogger(__name__)
@@ -63,14 +64,6 @@ def config_dir() -> Path:
     return checkout
 
 
-#: frame_subsampler ``image_transport`` -> the bag image topics it would subscribe, preferred first.
-_IMAGE_TOPICS = {
-    'auto': ('/camera/image_raw', '/camera/image_raw/compressed'),
-    'raw': ('/camera/image_raw',),
-    'compressed': ('/camera/image_raw/compressed',),
-}
-
-
 def camera_topics(bag: Path | str, image_transport: str = 'auto', pose_source: str = 'auto') -> list[str]:
     """The topics of ``bag`` that a frame_subsampler with these settings subscribes (in the root
     namespace, unremapped): its image topic, ``/camera/camera_info`` and, unless ``pose_source`` is
@@ -81,11 +74,12 @@ def camera_topics(bag: Path | str, image_transport: str = 'auto', pose_source: s
 
     """
     from ibr_ros.bag import open_bag
+    from ibr_ros.core.live import IMAGE_TRANSPORTS
     from ibr_ros.errors import UserError
 
     with open_bag(bag) as reader:
         names = set(reader.topics)
-    wanted = _IMAGE_TOPICS.get(image_transport, _IMAGE_TOPICS['auto'])
+    wanted = ['/' + t for t in IMAGE_TRANSPORTS.get(image_transport, IMAGE_TRANSPORTS['auto'])]
     image = [t for t in wanted if t in names][:1]
     if not image:
         raise UserError(
@@ -94,6 +88,16 @@ def camera_topics(bag: Path | str, image_transport: str = 'auto', pose_source: s
         )
     others = ('/camera/camera_info',) + (('/camera/pose',) if pose_source != 'none' else ())
     return image + [t for t in others if t in names]
+
+
+def wait_for_subsampler(bag: Path | str, image_transport: str = 'auto', pose_source: str = 'auto') -> dict:
+    """bag_player parameters that start playback once a frame_subsampler with these settings
+    subscribes ``bag``'s camera topics (:func:`camera_topics`), however long that takes."""
+    return {
+        'wait_for_subscribers': 1,
+        'wait_timeout_s': 0.0,
+        'wait_topics': camera_topics(bag, image_transport, pose_source),
+    }
 
 
 def claim_domain(first: int) -> tuple[int, socket.socket]:

@@ -29,7 +29,7 @@ ARGUMENTS = {
 
 
 def _nodes(context, *args, **kwargs):
-    from ibr_ros.graph import camera_topics
+    from ibr_ros.graph import wait_for_subsampler
 
     arg = {name: LaunchConfiguration(name).perform(context) for name in ('config_dir', 'bag', *ARGUMENTS)}
     config, bag, refiners = arg['config_dir'], arg['bag'], int(arg['refiners'])
@@ -43,9 +43,7 @@ def _nodes(context, *args, **kwargs):
         player = {
             'bag': bag,
             'rate': float(arg['rate']),
-            'wait_for_subscribers': 1,
-            'wait_timeout_s': 0.0,
-            'wait_topics': camera_topics(bag, arg['image_transport'], arg['pose_source']),
+            **wait_for_subsampler(bag, arg['image_transport'], arg['pose_source']),
         }
         actions.append(
             Node(package='ibr_ros', executable='bag_player', name='bag_player',

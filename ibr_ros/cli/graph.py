@@ -31,19 +31,18 @@ def build_specs(args: argparse.Namespace) -> list:
             raise UserError('--bag is required (or --no-player to feed the graph from live topics)')
         if not Path(args.bag).exists():
             raise UserError(f'{args.bag}: no such bag')
-        from ibr_ros.graph import camera_topics
+        from ibr_ros.graph import wait_for_subsampler
 
+        subsampler = sets.get('frame_subsampler', {})
         params = {
             'bag': str(Path(args.bag).resolve()),
             'rate': args.rate,
             'loop': args.loop,
             # Playback starts once the frame_subsampler listens: nothing of the flight is lost.
-            'wait_for_subscribers': 1,
-            'wait_timeout_s': 0.0,
-            'wait_topics': camera_topics(
+            **wait_for_subsampler(
                 args.bag,
-                str(sets.get('frame_subsampler', {}).get('image_transport', 'auto')),
-                str(sets.get('frame_subsampler', {}).get('pose_source', 'auto')),
+                str(subsampler.get('image_transport', 'auto')),
+                str(subsampler.get('pose_source', 'auto')),
             ),
         }
         specs.append(NodeSpec('bag_player', {**params, **sets.pop('bag_player', {})}))

@@ -17,6 +17,7 @@ from ibr_ros.core.schedule import shard_of
 
 __all__ = [
     'CAMERA_STATES',
+    'IMAGE_TRANSPORTS',
     'POSE_MODES',
     'FlightStatus',
     'PoseSource',
@@ -29,6 +30,13 @@ POSE_MODES = ('auto', 'topic', 'none')
 
 #: States of the camera stream: no publisher yet, publishing, every publisher gone (the end of a bag).
 CAMERA_STATES = ('waiting', 'streaming', 'ended')
+
+#: frame_subsampler ``image_transport`` -> the (relative) image topics it may subscribe, preferred first.
+IMAGE_TRANSPORTS = {
+    'auto': ('camera/image_raw', 'camera/image_raw/compressed'),
+    'raw': ('camera/image_raw',),
+    'compressed': ('camera/image_raw/compressed',),
+}
 
 
 class PoseSource:

@@ -1141,19 +1141,11 @@ class NovelViewRenderer:
         return [int(i) for i in idx[order]], None
 
     # -- rendering ------------------------------------------------------------------------------
-    def refusal(self, t_wc: ArrayLike) -> str | None:
-        """Why :meth:`render` would render nothing at pose ``t_wc`` (invalid pose, too far, facing away
-        from every view), found without rendering; None when it would try."""
-        try:
-            t_wn = validate_pose(np.asarray(t_wc, dtype=np.float64), field='t_wc')
-        except (GeometryError, TypeError, ValueError) as e:
-            return f'invalid pose: {e}'
-        return self._candidates(t_wn)[1]
+    def _query_pose(self, t_wc: ArrayLike) -> tuple[NDArray[np.float64] | None, list[int], str | None]:
+        """Validated pose, candidate views and the reason nothing can be rendered (None: try).
 
-    def render(self, t_wc: ArrayLike, camera: PinholeCamera) -> Rendered:
-        """Render the view of ``camera`` at camera-to-world pose ``t_wc`` (4x4; see module docstring)."""
-        if not isinstance(camera, PinholeCamera):
-            raise ValueError(f'camera must be a PinholeCamera, got {type(camera).__name__}')
+        Raises ValueError for a ``t_wc`` that is not a numeric 4x4 matrix.
+        """
         try:
             m = np.asarray(t_wc, dtype=np.float64)
         except (TypeError, ValueError) as e:
@@ -1163,9 +1155,24 @@ class NovelViewRenderer:
         try:
             t_wn = validate_pose(m, field='t_wc')
         except GeometryError as e:
-            return Rendered.empty(camera, f'invalid pose: {e}', self.skipped_views)
+            return None, [], f'invalid pose: {e}'
         cands, reason = self._candidates(t_wn)
-        if reason is not None:
+        return t_wn, cands, reason
+
+    def refusal(self, t_wc: ArrayLike) -> str | None:
+        """Why :meth:`render` would render nothing at pose ``t_wc`` (invalid pose, too far, facing away
+        from every view), found without rendering; None when it would try."""
+        try:
+            return self._query_pose(t_wc)[2]
+        except ValueError as e:
+            return f'invalid pose: {e}'
+
+    def render(self, t_wc: ArrayLike, camera: PinholeCamera) -> Rendered:
+        """Render the view of ``camera`` at camera-to-world pose ``t_wc`` (4x4; see module docstring)."""
+        if not isinstance(camera, PinholeCamera):
+            raise ValueError(f'camera must be a PinholeCamera, got {type(camera).__name__}')
+        t_wn, cands, reason = self._query_pose(t_wc)
+        if reason is not None or t_wn is None:
             return Rendered.empty(camera, reason, self.skipped_views)
         renderer = self.config.renderer
         if renderer == 'ibr':

@@ -76,7 +76,7 @@ def run_demo(
 
     from ibr_ros.bag import open_bag
     from ibr_ros.core.live import FlightStatus
-    from ibr_ros.graph import camera_topics, claim_domain
+    from ibr_ros.graph import claim_domain, wait_for_subsampler
 
     bag, out = Path(bag), Path(out)
     gt = GroundTruthRenderer(bag)  # raises UserError for bags without synth.json
@@ -92,9 +92,7 @@ def run_demo(
                 'bag': str(bag.resolve()),
                 'rate': rate,
                 'topics': topics,
-                'wait_for_subscribers': 1,
-                'wait_timeout_s': 0.0,
-                'wait_topics': camera_topics(bag),
+                **wait_for_subsampler(bag),
             },
         ),
         NodeSpec('frame_subsampler', {'scene_depth_m': 80.0}),

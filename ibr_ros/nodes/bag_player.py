@@ -257,7 +257,7 @@ class BagPlayer(Node):
             self.get_logger().warning(f'topic_qos of topics that are not played: {", ".join(unknown)}')
         self.outs: dict[str, _Out] = {}
         self.bad = BadInput(self)
-        qos_log = []
+        qos_log: dict[str, str] = {}  # topic -> its QoS line
         is_image = lambda t: available[t].msgtype.endswith(('/Image', '/CompressedImage'))  # noqa: E731
         for topic in sorted(wanted, key=is_image):  # images last (stable: bag order otherwise)
             info = available[topic]
@@ -275,14 +275,13 @@ class BagPlayer(Node):
             if self.rate == 0 and qos.durability == 'volatile' and qos.depth > self.window:
                 # A full history makes Fast DDS ask for acknowledgements with every message.
                 qos = replace(qos, depth=self.window, source=f'{qos.source}, flow_window at rate 0')
-            qos_log.append(f'{topic}: {qos}' + (f'; {note}' if note else ''))
+            qos_log[topic] = f'{topic}: {qos}' + (f'; {note}' if note else '')
             cls = message_class(info.msgtype)
             name = remap.get(topic, topic)
             publisher = self.create_publisher(cls, name, qos.profile())
             durable = qos.durability == 'transient_local'
             self.outs[topic] = _Out(name, publisher, decoder(info.msgtype, cls), qos.depth, durable)
         self.outs = {t: self.outs[t] for t in wanted if t in self.outs}  # bag order again
-        qos_log = [line for t in wanted for line in qos_log if line.startswith(f'{t}: ')]
         if not self.outs:
             raise UserError(f'{self.bag_path}: none of the topics can be played')
         names = {o.name: o for o in self.outs.values()}
@@ -315,7 +314,7 @@ class BagPlayer(Node):
             + f' at rate {self.rate:g}'
             + (' (as fast as possible)' if self.rate == 0 else '')
         )
-        self.get_logger().info('QoS: ' + ', '.join(qos_log))
+        self.get_logger().info('QoS: ' + ', '.join(qos_log[t] for t in self.outs))
 
     def _unplayable(self, msgtype: str, serialization_format: str) -> str:
         """Why a topic of ``msgtype`` cannot be replayed as is; '' when it can."""

@@ -109,6 +109,7 @@ from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
     declare,
+    known_depth,
     latched_qos,
     model_qos,
     reliable_qos,
@@ -431,13 +432,17 @@ class DepthRefinerNode(Node):
     def _on_depth(self, topic: str, msg: Image | CameraInfo) -> None:
         """Depth (or its camera_info) on keyframes/depth: another worker's is noted and mirrored once."""
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
+        with self._lock:
+            if stamp in self._published:  # this process's own (or already mirrored): no decoding
+                self._others.pop(stamp, None)
+                return
         if topic == 'keyframes/depth':
             try:
                 depth = msg_utils.depth_image_to_m(msg)
             except BAD_MESSAGE as exc:
                 self.bad('depth', f'keyframes/depth at {stamp} ns: {exc}')
                 return
-            if not (np.isfinite(depth) & (depth > 0)).any():
+            if not known_depth(depth):
                 self.bad('depth', f'keyframes/depth at {stamp} ns has no known value: ignored')
                 return
         with self._lock:
@@ -653,7 +658,7 @@ class DepthRefinerNode(Node):
         t2 = time.perf_counter()
         if self._stop.is_set():
             return False
-        if not (np.isfinite(r.depth) & (r.depth > 0)).any():
+        if not known_depth(r.depth):
             self.bad('refine', f'keyframe {job.stamp} ns ({n} neighbours): no pixel has a known depth')
             return False
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])

@@ -52,7 +52,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
 from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
-from ibr_ros.core.live import FlightStatus, PoseSource
+from ibr_ros.core.live import IMAGE_TRANSPORTS, FlightStatus, PoseSource
 from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
@@ -65,16 +65,8 @@ from ibr_ros.nodes.common import (
     subscribe_field,
 )
 
-#: ``image_transport`` -> the image topics it may subscribe, in order of preference.
-TRANSPORTS = {
-    'auto': ('raw', 'compressed'),
-    'raw': ('raw',),
-    'compressed': ('compressed',),
-}
-IMAGE_TOPICS = {
-    'raw': (Image, 'camera/image_raw'),
-    'compressed': (CompressedImage, 'camera/image_raw/compressed'),
-}
+#: Image topic (:data:`~ibr_ros.core.live.IMAGE_TRANSPORTS`) -> its message type.
+IMAGE_TYPES = {'camera/image_raw': Image, 'camera/image_raw/compressed': CompressedImage}
 
 #: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
 POSE_TYPES = {
@@ -151,7 +143,7 @@ class FrameSubsampler(Node):
         )
         if self.pose_type not in POSE_TYPES:
             raise ValueError(f"parameter pose_type must be 'pose' or 'odometry', got {self.pose_type!r}")
-        if transport not in TRANSPORTS:
+        if transport not in IMAGE_TRANSPORTS:
             raise ValueError(
                 f"parameter image_transport must be 'auto', 'raw' or 'compressed', got {transport!r}"
             )
@@ -185,7 +177,9 @@ class FrameSubsampler(Node):
         pose = lambda m: (to_matrix(m), m.header.frame_id or 'map')  # noqa: E731
         # field -> candidate (message type, topic, conversion), in order of preference.
         self._inputs: dict[str, list[tuple[type, str, object]]] = {
-            'image': [(*IMAGE_TOPICS[t], msg_utils.camera_image_to_rgb) for t in TRANSPORTS[transport]],
+            'image': [
+                (IMAGE_TYPES[t], t, msg_utils.camera_image_to_rgb) for t in IMAGE_TRANSPORTS[transport]
+            ],
             'camera_info': [(CameraInfo, 'camera/camera_info', info)],
         }
         if pose_mode != 'none':

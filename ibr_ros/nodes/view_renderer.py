@@ -49,6 +49,7 @@ from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
     declare,
+    known_depth,
     model_qos,
     reliable_qos,
     run_node,
@@ -132,7 +133,7 @@ class ViewRenderer(Node):
 
     # -- model ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
-        if field == 'depth' and not (np.isfinite(value) & (value > 0)).any():  # type: ignore[operator]
+        if field == 'depth' and not known_depth(value):  # type: ignore[arg-type]
             self.bad('depth_unknown', f'keyframe {stamp} ns: a depth with no known value, rejected')
             return
         if stamp in self.indices:  # image, camera_info and pose are fixed once a keyframe is in the model

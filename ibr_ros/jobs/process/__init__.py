@@ -130,7 +130,7 @@ def process_bag(
     stage.mkdir(parents=True)
     try:
         model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
-        topic_counts = _write_bag(stage / 'bag', keyframes, views, cfg, model_frame, False)
+        topic_counts = _write_bag(stage / 'bag', keyframes, views, cfg, model_frame)
         t_write = time.perf_counter()
         previews = stage / 'previews'
         previews.mkdir()

@@ -38,9 +38,8 @@ def _write_bag(
     views: list[NovelView],
     cfg: _Configs,
     model_frame: str,
-    overwrite: bool,
 ) -> dict[str, int]:
-    """The output bag, every message logged at its header stamp, in time order."""
+    """The output bag (a new ``path``), every message logged at its header stamp, in time order."""
     rb = {'flavor': 'rosbags'}
     events: list[tuple[int, int, str, object]] = []
     for k in keyframes:
@@ -62,7 +61,7 @@ def _write_bag(
             events.append((v.stamp, 7, 'view_info', msg_utils.pinhole_to_camera_info(v.camera, header, **rb)))
     events.sort(key=lambda e: (e[0], e[1]))
     counts: Counter = Counter()
-    with BagWriter(path, overwrite=overwrite) as writer:
+    with BagWriter(path) as writer:
         for name, msgtype in OUT_TOPICS.values():
             writer.add_topic(name, msgtype, MODEL_QOS if name.startswith('/keyframes/') else REPLY_QOS)
         for stamp, _, key, msg in events:
