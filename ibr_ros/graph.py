@@ -187,7 +187,7 @@ class Graph:
         config: Path | None = None,
         env: Mapping[str, str] | None = None,
         log_dir: Path | None = None,
-        grace_s: float = 10.0,
+        grace_s: float = 30.0,  # a depth_refiner finishes its current MVS or SfM step first
     ) -> None:
         self.specs = list(nodes)
         self.config = config

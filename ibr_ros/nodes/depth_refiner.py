@@ -118,6 +118,9 @@ from ibr_ros.nodes.common import (
     subscribe_field,
 )
 
+#: Longest wait at shutdown for the worker's current step (an SfM registration of a long flight).
+STOP_TIMEOUT_S = 120.0
+
 DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
 
 
@@ -695,9 +698,14 @@ class DepthRefinerNode(Node):
         return True
 
     def destroy_node(self) -> None:
+        """Stop the worker once its current step (an MVS sweep, an SfM registration) is done: a process
+        that exits under pycolmap's or numba's threads aborts (std::terminate)."""
         self._stop.set()
         self._wake.set()
-        self._worker.join(timeout=2.0)
+        self._worker.join(timeout=0.5)
+        if self._worker.is_alive():
+            print(f'{self.get_name()}: stopping after the current refinement step', file=sys.stderr)
+            self._worker.join(timeout=STOP_TIMEOUT_S)
         super().destroy_node()
 
 
