@@ -25,7 +25,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from ibr_ros.core import fusion, prune, remap
+from ibr_ros.core.depth import fusion, prune, remap
 
 N_RUNS = 10
 TARGET_FUSE_S = 0.040

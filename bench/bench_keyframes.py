@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmark this c
 
 import cv2
 
-from ibr_ros.core.keyframes import KeyframeSelector, blur_score
+from ibr_ros.core.flight.keyframes import KeyframeSelector, blur_score
 from ibr_ros.core.synth import SceneConfig, build_scene, flight_camera, make_trajectory, render_view
 
 N_FRAMES = 12

@@ -25,8 +25,8 @@ sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
 
 from timing import median_ms  # noqa: E402
 
-from ibr_ros.core.mono import PRESETS, GroundPlanePrior, OnnxMonoDepth  # noqa: E402
-from ibr_ros.core.sky import SKY_PRESETS, OnnxSkySegmenter  # noqa: E402
+from ibr_ros.core.depth.mono import PRESETS, GroundPlanePrior, OnnxMonoDepth  # noqa: E402
+from ibr_ros.core.depth.sky import SKY_PRESETS, OnnxSkySegmenter  # noqa: E402
 from ibr_ros.jobs.mono_data import EVAL_SEED_BASE, render_samples  # noqa: E402
 from ibr_ros.models import SHIPPED_MONO_MODEL  # noqa: E402
 

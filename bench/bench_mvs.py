@@ -1,4 +1,4 @@
-"""Per-view MVS benchmark: :func:`ibr_ros.core.mvs.mvs_depth` on a 960x540 view with 4 neighbours.
+"""Per-view MVS benchmark: :func:`ibr_ros.core.depth.mvs.mvs_depth` on a 960x540 view with 4 neighbours.
 
 Synthetic oblique orbit over the procedural town (``ibr_ros.core.synth``, seed 1, one frame every
 16 m), reference = middle frame, 4 source views from ``select_neighbours``, depth range from 300
@@ -26,7 +26,7 @@ import cv2
 import numba
 import numpy as np
 
-from ibr_ros.core import mvs
+from ibr_ros.core.depth import mvs
 from ibr_ros.core.synth import (
     SceneConfig,
     build_scene,

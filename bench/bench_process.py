@@ -44,9 +44,9 @@ STAGES = ('subsample', 'sfm', 'mvs', 'refine', 'render', 'pipeline', 'write', 'e
 
 def live_schedule_seconds(bag: Path, params: Path | None, max_keyframes: int | None) -> list[float]:
     """MVS + refinement seconds per keyframe with the live node's schedule (arrival order, flush at end)."""
-    from ibr_ros.core.mvs import MvsView, compute_depth_maps
-    from ibr_ros.core.refine import DepthRefiner, RefineError
-    from ibr_ros.core.schedule import RefineScheduler
+    from ibr_ros.core.depth.mvs import MvsView, compute_depth_maps
+    from ibr_ros.core.depth.refine import DepthRefiner, RefineError
+    from ibr_ros.core.depth.schedule import RefineScheduler
     from ibr_ros.jobs.process import ProcessOptions, _configs, _subsample, load_params
 
     options = ProcessOptions(params=params, max_keyframes=max_keyframes)

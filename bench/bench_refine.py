@@ -24,9 +24,9 @@ import cv2
 import numba
 import numpy as np
 
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.mvs import MvsView
-from ibr_ros.core.refine import DepthRefiner
+from ibr_ros.core.depth.mvs import MvsView
+from ibr_ros.core.depth.refine import DepthRefiner
+from ibr_ros.core.geometry.transforms import look_at
 from ibr_ros.core.synth import LABEL_NAMES, SceneConfig, build_scene, flight_camera, render_view
 
 N_RUNS = 7

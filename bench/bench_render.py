@@ -30,10 +30,10 @@ sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
 
 from timing import median_ms  # noqa: E402
 
-from ibr_ros.core.camera import PinholeCamera  # noqa: E402
-from ibr_ros.core.geometry import matrix_from_rt  # noqa: E402
-from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
-from ibr_ros.core.rephoto import score  # noqa: E402
+from ibr_ros.core.evaluation.rephoto import score  # noqa: E402
+from ibr_ros.core.geometry.camera import PinholeCamera  # noqa: E402
+from ibr_ros.core.geometry.transforms import matrix_from_rt  # noqa: E402
+from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
 from ibr_ros.core.synth import (  # noqa: E402
     SceneConfig,
     build_scene,

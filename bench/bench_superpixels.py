@@ -26,8 +26,8 @@ sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
 
 from timing import median_ms  # noqa: E402
 
-from ibr_ros.core.rephoto import shiftable_l1  # noqa: E402
-from ibr_ros.core.superpixels import slic  # noqa: E402
+from ibr_ros.core.evaluation.rephoto import shiftable_l1  # noqa: E402
+from ibr_ros.core.render.superpixels import slic  # noqa: E402
 
 W, H = 960, 540
 N_SEGMENTS = 1500

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numba
 
-from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.synth import (
     SceneConfig,
     build_scene,

@@ -74,7 +74,7 @@ def camera_topics(bag: Path | str, image_transport: str = 'auto', pose_source: s
 
     """
     from ibr_ros.bag import open_bag
-    from ibr_ros.core.live import IMAGE_TRANSPORTS
+    from ibr_ros.core.flight.status import IMAGE_TRANSPORTS
     from ibr_ros.errors import UserError
 
     with open_bag(bag) as reader:

@@ -6,10 +6,10 @@ sfm_mode must be 'auto', 'always' or 'off', got 'sometimes'``; ``ibr process`` p
 
 from __future__ import annotations
 
-from ibr_ros.core.mvs import MvsOptions
-from ibr_ros.core.refine import RefinerConfig
-from ibr_ros.core.render import RenderConfig
-from ibr_ros.core.sfm_session import ScaleHint
+from ibr_ros.core.depth.mvs import MvsOptions
+from ibr_ros.core.depth.refine import RefinerConfig
+from ibr_ros.core.registration.sfm_session import ScaleHint
+from ibr_ros.core.render.renderer import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.models import mono_spec, sky_spec
 

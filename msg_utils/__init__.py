@@ -1,8 +1,8 @@
 """ROS messages <-> numpy, for rclpy message classes and rosbags dataclasses alike.
 
 Functions that build messages take ``flavor='rclpy' | 'rosbags'``; functions that read them
-accept either. Conversions follow ibr_ros conventions (:mod:`ibr_ros.core.geometry`,
-:mod:`ibr_ros.core.camera`): 4x4 float64 camera-to-world poses, REP-103 optical frames, ENU
+accept either. Conversions follow ibr_ros conventions (:mod:`ibr_ros.core.geometry.transforms`,
+:mod:`ibr_ros.core.geometry.camera`): 4x4 float64 camera-to-world poses, REP-103 optical frames, ENU
 ``map``, float32 depth in metres with 0 = unknown. Bad messages raise :class:`MessageError`.
 """
 

@@ -1,4 +1,4 @@
-"""``sensor_msgs/CameraInfo`` <-> :class:`ibr_ros.core.camera.PinholeCamera`."""
+"""``sensor_msgs/CameraInfo`` <-> :class:`ibr_ros.core.geometry.camera.PinholeCamera`."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ibr_ros.core.camera import CameraError, PinholeCamera, Roi
+from ibr_ros.core.geometry.camera import CameraError, PinholeCamera, Roi
 from msg_utils.errors import MessageError
 from msg_utils.flavor import Flavor, coerce_header, new_message
 

@@ -4,7 +4,8 @@ A matrix ``T`` maps child-frame coordinates to parent-frame coordinates (``p_par
 for ``PoseStamped``/``Odometry`` the parent is ``header.frame_id`` and the pose is that of the
 child (Odometry's ``child_frame_id``); for ``TransformStamped`` the parent is ``header.frame_id``
 and the child ``child_frame_id``. With parent ``map`` (ENU) and a REP-103 optical camera child,
-``T`` is the camera-to-world ``T_wc`` of :mod:`ibr_ros.core.geometry`. Metres, quaternions (x, y, z, w).
+``T`` is the camera-to-world ``T_wc`` of :mod:`ibr_ros.core.geometry.transforms`. Metres,
+quaternions (x, y, z, w).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ibr_ros.core.geometry import (
+from ibr_ros.core.geometry.transforms import (
     GeometryError,
     matrix_from_rt,
     quaternion_from_rotation,

@@ -20,7 +20,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.bag import open_bag
-from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.jobs.synth_bag import TOPICS
 
 SHIPPED_BAG = Path('bags') / 'synth_orbit_s0'

@@ -32,7 +32,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
 from ibr_ros.bag import BagWriter, OfferedQos, TopicInfo, open_bag
-from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.nodes.common import model_qos
 
 SUB_QOS = QoSProfile(depth=1000, reliability=QoSReliabilityPolicy.RELIABLE)

@@ -13,7 +13,7 @@ import json
 
 import numpy as np
 
-from ibr_ros.core.geometry import look_at
+from ibr_ros.core.geometry.transforms import look_at
 from ibr_ros.jobs.demo import interpolate_path, run_demo
 
 

@@ -33,7 +33,7 @@ import numpy as np
 import pytest
 
 from ibr_ros.cli.main import main
-from ibr_ros.core.rephoto import score, shiftable_l1
+from ibr_ros.core.evaluation.rephoto import score, shiftable_l1
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_rephoto import (
     MAIN_WINDOW,

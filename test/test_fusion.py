@@ -7,7 +7,7 @@ import heapq
 import numpy as np
 import pytest
 
-from ibr_ros.core.fusion import build_mst, fuse_depth, mvs_support, tree_filter
+from ibr_ros.core.depth.fusion import build_mst, fuse_depth, mvs_support, tree_filter
 
 
 def grid_edges(rgb: np.ndarray):

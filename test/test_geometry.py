@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibr_ros.core.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry import (
+from ibr_ros.core.geometry.camera import CameraError, PinholeCamera
+from ibr_ros.core.geometry.transforms import (
     GeometryError,
     look_at,
     matrix_from_rt,
@@ -110,7 +110,7 @@ def test_camera_rejects_bad_parameters(kwargs, match):
 
 def test_rotation_angle_and_similarity_helpers() -> None:
     """rotation_angle_deg, similarity_times_pose and core.sfm.similarity_from_orientations agree."""
-    from ibr_ros.core.sfm import similarity_from_orientations
+    from ibr_ros.core.registration.sfm import similarity_from_orientations
 
     r = rotation_from_ypr(0.3, -0.2, 0.1)
     assert rotation_angle_deg(r, r) == pytest.approx(0.0, abs=1e-6)

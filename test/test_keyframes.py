@@ -8,8 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ibr_ros.core.geometry import look_at, matrix_from_rt, rotation_from_ypr
-from ibr_ros.core.keyframes import (
+from ibr_ros.core.flight.keyframes import (
     IntervalSelector,
     KeyframeConfig,
     KeyframeSelector,
@@ -17,6 +16,7 @@ from ibr_ros.core.keyframes import (
     select_keyframes,
     select_keyframes_for_target,
 )
+from ibr_ros.core.geometry.transforms import look_at, matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.synth import SceneConfig, build_scene, flight_camera, make_trajectory, render_view
 
 

@@ -36,10 +36,10 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from test_refiner_renderer_nodes import Proc
 
 import msg_utils
-from ibr_ros.core.live import FlightStatus, PoseSource, ShardMembership
-from ibr_ros.core.mvs import MvsView
-from ibr_ros.core.schedule import RefineScheduler, ScheduleConfig, shard_of
-from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.core.depth.mvs import MvsView
+from ibr_ros.core.depth.schedule import RefineScheduler, ScheduleConfig, shard_of
+from ibr_ros.core.flight.stamps import StampAssembler
+from ibr_ros.core.flight.status import FlightStatus, PoseSource, ShardMembership
 from ibr_ros.nodes.common import latched_qos, model_qos, reliable_qos
 
 LATCHED = model_qos()
@@ -105,8 +105,8 @@ def test_shard_membership_takes_over_dead_workers():
 
 
 def test_scheduler_reassign_and_published_elsewhere():
-    from ibr_ros.core.camera import PinholeCamera
-    from ibr_ros.core.geometry import look_at
+    from ibr_ros.core.geometry.camera import PinholeCamera
+    from ibr_ros.core.geometry.transforms import look_at
 
     cam = PinholeCamera.from_fov(64, 48, 60.0)
     sched = RefineScheduler(ScheduleConfig(num_workers=2, worker_index=0, min_neighbours=1))

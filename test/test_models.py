@@ -11,8 +11,8 @@ import numpy as np
 import onnx
 import pytest
 
-from ibr_ros.core.mono import PRESETS, OnnxMonoDepth
-from ibr_ros.core.sky import SKY_PRESETS, OnnxSkySegmenter
+from ibr_ros.core.depth.mono import PRESETS, OnnxMonoDepth
+from ibr_ros.core.depth.sky import SKY_PRESETS, OnnxSkySegmenter
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_mono import evaluate_sample, sparse_reference, spearman
 from ibr_ros.jobs.mono_data import EVAL_SEED_BASE, TRAIN_SEED_BASE, render_samples

@@ -109,7 +109,7 @@ def test_cli_fetch(
 
 
 def test_registry_entries_are_well_formed() -> None:
-    from ibr_ros.core.mono import PRESETS
+    from ibr_ros.core.depth.mono import PRESETS
 
     for e in MODELS.values():
         assert e.url.startswith('https://')

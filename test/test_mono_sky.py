@@ -8,18 +8,18 @@ import numpy as np
 import pytest
 from onnx_models import channel_model, sky_logits_model
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.mono import (
+from ibr_ros.core.depth.mono import (
     PRESETS,
     GroundPlanePrior,
     MonoModelError,
     MonoModelSpec,
     OnnxMonoDepth,
-    fit_ground_plane,
     nearness_to_g,
 )
-from ibr_ros.core.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, horizon_mask
+from ibr_ros.core.depth.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, horizon_mask
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.plane import fit_ground_plane
+from ibr_ros.core.geometry.transforms import look_at
 
 
 def _gradient_image(h=60, w=80) -> np.ndarray:

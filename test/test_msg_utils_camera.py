@@ -1,4 +1,4 @@
-"""msg_utils.camera_info and ibr_ros.core.undistort."""
+"""msg_utils.camera_info and ibr_ros.core.geometry.undistort."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rclpy.serialization import deserialize_message, serialize_message
 
-from ibr_ros.core.camera import CameraError, PinholeCamera, Roi
-from ibr_ros.core.undistort import undistort_image, undistort_points
+from ibr_ros.core.geometry.camera import CameraError, PinholeCamera, Roi
+from ibr_ros.core.geometry.undistort import undistort_image, undistort_points
 from msg_utils import (
     MessageError,
     camera_info_to_pinhole,

@@ -1,4 +1,4 @@
-"""msg_utils.pose, msg_utils.navsat, msg_utils.flavor and ibr_ros.core.geodesy."""
+"""msg_utils.pose, msg_utils.navsat, msg_utils.flavor and ibr_ros.core.geometry.geodesy."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rclpy.serialization import deserialize_message, serialize_message
 
-from ibr_ros.core.geodesy import (
+from ibr_ros.core.geometry.geodesy import (
     WGS84_A,
     ecef_to_geodetic,
     enu_to_geodetic,
     geodetic_to_ecef,
     geodetic_to_enu,
 )
-from ibr_ros.core.geometry import GeometryError, look_at, matrix_from_rt, rotation_from_quaternion
+from ibr_ros.core.geometry.transforms import GeometryError, look_at, matrix_from_rt, rotation_from_quaternion
 from msg_utils import (
     GeoFix,
     MessageError,

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ibr_ros.core import mvs
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.mvs import MvsBackendUnavailable, MvsOptions, MvsView
+from ibr_ros.core.depth import mvs
+from ibr_ros.core.depth.mvs import MvsBackendUnavailable, MvsOptions, MvsView
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import look_at
 from ibr_ros.core.synth import (
     LABEL_BUILDING_WALL,
     SceneConfig,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from ibr_ros.core.render import RenderConfig
+from ibr_ros.core.render.renderer import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.node_config import RENDER_PARAMETERS, render_config
 

@@ -24,7 +24,7 @@ import pytest
 import msg_utils
 from ibr_ros.bag import BagWriter, open_bag
 from ibr_ros.cli.main import main
-from ibr_ros.core.sfm import umeyama
+from ibr_ros.core.registration.sfm import umeyama
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process import OUT_TOPICS, ProcessOptions, load_params, process_bag
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ibr_ros.core.prune import median_filter_valid, prune_depth, weighted_median_filter_valid
+from ibr_ros.core.depth.prune import median_filter_valid, prune_depth, weighted_median_filter_valid
 
 
 def windows(shape: tuple[int, int], size: int):
@@ -175,7 +175,7 @@ def test_errors():
 
 @pytest.mark.parametrize('r', [0, 1, 3, 15])
 def test_window_min_max_matches_brute_force(r):
-    from ibr_ros.core.prune import _column_min_max, _row_min_max
+    from ibr_ros.core.depth.prune import _column_min_max, _row_min_max
 
     d, _ = random_view(10, shape=(13, 17))
     row_min, row_max = _row_min_max(d, r)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.mvs import MvsView
-from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.core.depth.mvs import MvsView
+from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.core.geometry.transforms import look_at
 from ibr_ros.core.synth import LABEL_NAMES, SceneConfig, build_scene, flight_camera, render_view
 
 TREE, WALL = LABEL_NAMES.index('tree'), LABEL_NAMES.index('wall')

@@ -20,8 +20,8 @@ from node_harness import (
 from sensor_msgs.msg import Image
 
 import msg_utils
-from ibr_ros.core.mono import PRESETS
-from ibr_ros.core.sky import SKY_PRESETS
+from ibr_ros.core.depth.mono import PRESETS
+from ibr_ros.core.depth.sky import SKY_PRESETS
 from ibr_ros.errors import UserError
 from ibr_ros.models import SHIPPED_MONO_MODEL, mono_spec, sky_spec
 from ibr_ros.nodes.common import model_qos

@@ -25,8 +25,8 @@ from node_harness import (
 from sensor_msgs.msg import Image
 
 import msg_utils
-from ibr_ros.core.live import FlightStatus
-from ibr_ros.core.sfm import umeyama
+from ibr_ros.core.flight.status import FlightStatus
+from ibr_ros.core.registration.sfm import umeyama
 from ibr_ros.nodes.common import latched_qos, model_qos
 
 FRAMES = tuple(range(0, 192, 24))
@@ -130,7 +130,7 @@ def test_auto_sfm_starts_only_when_the_status_says_no_poses(monkeypatch):
     import rclpy
 
     import msg_utils
-    from ibr_ros.core.live import FlightStatus
+    from ibr_ros.core.flight.status import FlightStatus
     from ibr_ros.nodes.depth_refiner import DepthRefinerNode
 
     rclpy.init(args=['--ros-args', '-p', 'sfm_min_keyframes:=4'])

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibr_ros.core.remap import build_lut, level_medians, linear_remap, lut_remap, median_factor_remap
+from ibr_ros.core.depth.remap import build_lut, level_medians, linear_remap, lut_remap, median_factor_remap
 
 
 def pairs(samples: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray]:

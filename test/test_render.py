@@ -8,21 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-import ibr_ros.core.render as render_mod
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import look_at, matrix_from_rt
-from ibr_ros.core.render import PAPER_FIELDS, NovelViewRenderer, RenderConfig, Rendered, SourceView
-from ibr_ros.core.rephoto import score
-from ibr_ros.core.superpixels import slic, superpixel_stats
-from ibr_ros.core.synth import (
-    SceneConfig,
-    build_scene,
-    flight_camera,
-    make_trajectory,
-    render_view,
-    safe_altitude_range,
-)
-from ibr_ros.core.warp import (
+import ibr_ros.core.render.renderer as render_mod
+from ibr_ros.core.evaluation.rephoto import score
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import look_at, matrix_from_rt
+from ibr_ros.core.render.renderer import PAPER_FIELDS, NovelViewRenderer, RenderConfig, Rendered, SourceView
+from ibr_ros.core.render.superpixels import slic, superpixel_stats
+from ibr_ros.core.render.warp import (
     barycentric,
     circumscribed_triangles,
     prepare_warp,
@@ -30,6 +22,14 @@ from ibr_ros.core.warp import (
     shape_energy,
     solve_warp,
     warp_superpixels,
+)
+from ibr_ros.core.synth import (
+    SceneConfig,
+    build_scene,
+    flight_camera,
+    make_trajectory,
+    render_view,
+    safe_altitude_range,
 )
 
 SIZE = (320, 180)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ibr_ros.core.rephoto import RephotoScore, error_curve, score, shiftable_l1
+from ibr_ros.core.evaluation.rephoto import RephotoScore, error_curve, score, shiftable_l1
 
 
 def brute_force(gt: np.ndarray, synth: np.ndarray, patch: int, shift: int) -> np.ndarray:

@@ -59,10 +59,10 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.bag import BagWriter, open_bag
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import matrix_from_rt
-from ibr_ros.core.keyframes import KeyframeSelector, blur_score
-from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.core.flight.keyframes import KeyframeSelector, blur_score
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import matrix_from_rt
+from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
 N_BAD = 1000

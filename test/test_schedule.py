@@ -7,16 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.mvs import MvsOptions, MvsView
-from ibr_ros.core.schedule import (
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView
+from ibr_ros.core.depth.schedule import (
     RefineScheduler,
     ScheduleConfig,
     axis_scene_depth,
     parse_depth_range,
     shard_of,
 )
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import look_at
 
 CAM = PinholeCamera(64, 48, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]))
 RGB = np.zeros((48, 64, 3), np.uint8)

@@ -1,4 +1,4 @@
-"""Camera registration (``ibr_ros.core.sfm`` and ``ibr_ros.jobs.register_bag``).
+"""Camera registration (``ibr_ros.core.registration.sfm`` and ``ibr_ros.jobs.register_bag``).
 
 Two end-to-end runs: the real brighton_beach bag (18 DJI photos with EXIF GPS, must come out in
 metric ENU) and a synthetic flight with exact ground truth (no GPS: correct up to similarity).
@@ -17,9 +17,9 @@ import pytest
 
 from ibr_ros.cli import register as register_cli
 from ibr_ros.core import synth
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import look_at
-from ibr_ros.core.sfm import SfmError, SfmOptions, register_images, robust_similarity, umeyama
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import look_at
+from ibr_ros.core.registration.sfm import SfmError, SfmOptions, register_images, robust_similarity, umeyama
 from ibr_ros.jobs import register_bag as register_bag_job
 from ibr_ros.jobs.register_bag import BagRegistration, interpolate_positions, register_bag, select_indices
 

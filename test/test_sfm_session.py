@@ -1,4 +1,4 @@
-"""Incremental SfM registration of pose-less keyframes (``ibr_ros.core.sfm_session``).
+"""Incremental SfM registration of pose-less keyframes (``ibr_ros.core.registration.sfm_session``).
 
 Eight frames of the shipped synthetic orbit (every 24th, ~19 m apart), registered at 320x180: the
 poses must match the ground truth up to a similarity, keep their frame when more views arrive, and
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from node_harness import shipped_frames
 
-from ibr_ros.core.geometry import matrix_from_rt
-from ibr_ros.core.sfm import SfmError, umeyama
-from ibr_ros.core.sfm_session import ScaleHint, SfmSession
+from ibr_ros.core.geometry.transforms import matrix_from_rt
+from ibr_ros.core.registration.sfm import SfmError, umeyama
+from ibr_ros.core.registration.sfm_session import ScaleHint, SfmSession
 
 FRAMES = tuple(range(0, 192, 24))
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.core.flight.stamps import StampAssembler
 from ibr_ros.nodes.common import StampAssembler as Reexported
 
 FIELDS = ('image', 'camera_info', 'pose')

@@ -7,7 +7,7 @@ import numba
 import numpy as np
 import pytest
 
-from ibr_ros.core.superpixels import SuperpixelStats, slic, split_at_depth_edges, superpixel_stats
+from ibr_ros.core.render.superpixels import SuperpixelStats, slic, split_at_depth_edges, superpixel_stats
 
 
 def natural_image(h: int, w: int, seed: int = 0) -> np.ndarray:

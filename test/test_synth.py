@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import matrix_from_rt, rotation_from_ypr
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.synth import (
     LABEL_BUILDING_WALL,
     LABEL_GROUND,

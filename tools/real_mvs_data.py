@@ -4,7 +4,7 @@
 MegaDepth's idea on a small scale: multi-view reconstructions of real photos supervise single-view
 depth. The bag's images are registered with SfM (:func:`ibr_ros.jobs.register_bag.register_bag`,
 GPS-aligned when the bag has fixes), undistorted, resized to ``--width`` and given geometrically
-filtered MVS depth (:func:`ibr_ros.core.mvs.compute_depth_maps`, depth range from the sparse points).
+filtered MVS depth (:func:`ibr_ros.core.depth.mvs.compute_depth_maps`, depth range from the sparse points).
 Output ``--out`` (npz): ``rgb`` NxHxWx3 uint8, ``depth`` NxHxW float32 z-depth in metres (0 =
 unknown), ``k`` Nx3x3 intrinsics and ``t_wc`` Nx4x4 camera-to-world poses of the registered images.
 Used by ``tools/train_mono.py --real`` (sparse supervision) and ``ibr eval mono --real-mvs``.
@@ -32,8 +32,8 @@ LOG = logging.getLogger('real_mvs_data')
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
-    from ibr_ros.core.undistort import undistort_image
+    from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
+    from ibr_ros.core.geometry.undistort import undistort_image
     from ibr_ros.jobs.register_bag import register_bag
 
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])

@@ -1,7 +1,7 @@
 """``ibr query``: ask a running ``view_renderer`` for one novel view and save it.
 
 Publishes one ``geometry_msgs/PoseStamped`` on ``novel_view/query`` (orientation from ENU
-yaw/pitch/roll in degrees, :func:`ibr_ros.core.geometry.rotation_from_ypr`), waits for the
+yaw/pitch/roll in degrees, :func:`ibr_ros.core.geometry.transforms.rotation_from_ypr`), waits for the
 ``novel_view/image`` whose stamp equals the query's, writes it as PNG (atomically) and prints the
 round-trip latency. ``--width/--height/--hfov`` set the renderer's output intrinsics first (they are
 parameters of the renderer node, shared by all clients). Exit status 1 on timeout.
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from sensor_msgs.msg import Image
 
     import msg_utils
-    from ibr_ros.core.geometry import matrix_from_rt, rotation_from_ypr
+    from ibr_ros.core.geometry.transforms import matrix_from_rt, rotation_from_ypr
     from ibr_ros.nodes.common import reliable_qos
 
     rot = rotation_from_ypr(*(math.radians(a) for a in (args.yaw, args.pitch, args.roll)))

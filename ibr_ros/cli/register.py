@@ -14,7 +14,7 @@ def run(args: argparse.Namespace) -> int:
     """Register, print a one-line summary, write the JSON document (``--out``) and arrays (``--npz``)."""
     import numpy as np
 
-    from ibr_ros.core.sfm import SfmError, SfmOptions
+    from ibr_ros.core.registration.sfm import SfmError, SfmOptions
     from ibr_ros.jobs.register_bag import register_bag, registration_to_dict
 
     options = SfmOptions(

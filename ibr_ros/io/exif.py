@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import rotation_from_ypr
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import rotation_from_ypr
 from ibr_ros.errors import UserError
 
 __all__ = ['GimbalAttitude', 'PhotoMetadata', 'initial_camera', 'read_photo_metadata']

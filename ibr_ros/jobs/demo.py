@@ -23,8 +23,12 @@ import cv2
 import numpy as np
 
 import msg_utils
-from ibr_ros.core.geometry import matrix_from_rt, quaternion_from_rotation, rotation_from_quaternion
-from ibr_ros.core.rephoto import score
+from ibr_ros.core.evaluation.rephoto import score
+from ibr_ros.core.geometry.transforms import (
+    matrix_from_rt,
+    quaternion_from_rotation,
+    rotation_from_quaternion,
+)
 from ibr_ros.errors import UserError
 from ibr_ros.graph import Graph, NodeSpec
 from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
@@ -75,7 +79,7 @@ def run_demo(
     from sensor_msgs.msg import CameraInfo, Image
 
     from ibr_ros.bag import open_bag
-    from ibr_ros.core.live import FlightStatus
+    from ibr_ros.core.flight.status import FlightStatus
     from ibr_ros.graph import claim_domain, wait_for_subsampler
 
     bag, out = Path(bag), Path(out)

@@ -4,7 +4,7 @@ Views: every ``step``-th frame of the bag (at most ``max_views``), decoded from 
 the bag's exact poses and intrinsics; ground truth is re-rendered exactly from the bag's
 ``synth.json`` (:class:`ibr_ros.jobs.synth_bag.GroundTruthRenderer`). Synthetic bags have no SfM
 model, so 500 ground-truth points per view stand in for the sparse SfM points that set the MVS
-sweep range and the neighbour probes. MVS is the CPU backend of :mod:`ibr_ros.core.mvs`.
+sweep range and the neighbour probes. MVS is the CPU backend of :mod:`ibr_ros.core.depth.mvs`.
 
 Metrics (sky = ground-truth sky, excluded everywhere; "holes" = non-sky pixels without pruned MVS):
 
@@ -36,10 +36,10 @@ from numpy.typing import NDArray
 
 import msg_utils
 from ibr_ros.bag import open_bag
-from ibr_ros.core.fusion import fuse_depth
-from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
-from ibr_ros.core.refine import DepthRefiner, RefinerConfig
-from ibr_ros.core.remap import linear_remap, lut_remap, median_factor_remap
+from ibr_ros.core.depth.fusion import fuse_depth
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
+from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig
+from ibr_ros.core.depth.remap import linear_remap, lut_remap, median_factor_remap
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 

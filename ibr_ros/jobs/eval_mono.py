@@ -5,14 +5,14 @@ Synthetic views come from :func:`ibr_ros.jobs.mono_data.render_samples` with sce
 
 * a sparse reference emulating MVS: ``ref_fraction`` of the non-sky pixels, chosen at random,
   with their ground-truth depth (everything else unknown);
-* the model's G (:class:`~ibr_ros.core.mono.OnnxMonoDepth`), remapped with the paper's LUT
-  (:func:`~ibr_ros.core.remap.lut_remap`) using that reference;
+* the model's G (:class:`~ibr_ros.core.depth.mono.OnnxMonoDepth`), remapped with the paper's LUT
+  (:func:`~ibr_ros.core.depth.remap.lut_remap`) using that reference;
 * baselines remapped the same way: the geometric ground-plane prior
-  (:class:`~ibr_ros.core.mono.GroundPlanePrior` fitted to the reference points in the world frame)
+  (:class:`~ibr_ros.core.depth.mono.GroundPlanePrior` fitted to the reference points in the world frame)
   and a constant G (every pixel gets the reference median);
 * Abs Rel = mean |d - gt| / gt over all ground-truth non-sky pixels; Spearman rank correlation of
   the prediction's nearness with ground-truth inverse depth over the same pixels; sky IoU of the
-  model's sky mask (:class:`~ibr_ros.core.sky.OnnxSkySegmenter`) against the ground-truth sky,
+  model's sky mask (:class:`~ibr_ros.core.depth.sky.OnnxSkySegmenter`) against the ground-truth sky,
   per view where either has sky, and pooled over all views (sum of intersections / sum of unions).
 
 Real photos (no ground truth; qualitative PNGs of input, G and sky): scikit-image's ``camera`` and
@@ -39,10 +39,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.mono import PRESETS, GroundPlanePrior, OnnxMonoDepth, fit_ground_plane, nearness_to_g
-from ibr_ros.core.remap import lut_remap
-from ibr_ros.core.sky import SKY_PRESETS, OnnxSkySegmenter
+from ibr_ros.core.depth.mono import PRESETS, GroundPlanePrior, OnnxMonoDepth, nearness_to_g
+from ibr_ros.core.depth.remap import lut_remap
+from ibr_ros.core.depth.sky import SKY_PRESETS, OnnxSkySegmenter
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.plane import fit_ground_plane
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import write_atomic
 from ibr_ros.jobs.mono_data import EVAL_SEED_BASE, MonoSample, render_samples

@@ -9,7 +9,7 @@ as a second reference, with the exact re-rendered ground-truth frame.
 
 Depth of the views, computed once and reused by every holdout: MVS (CPU backend) over all selected
 views, held-out ones included (their photos take part in their neighbours' MVS, as when one
-reconstruction serves every holdout), then :class:`~ibr_ros.core.refine.DepthRefiner`. Sources:
+reconstruction serves every holdout), then :class:`~ibr_ros.core.depth.refine.DepthRefiner`. Sources:
 
 * ``mvs``: pruned MVS depth with its holes (with the image hole filling below: the paper's
   COLMAP_Inpainting);
@@ -23,7 +23,7 @@ by default :class:`RenderConfig`'s) on every source; ``paper`` (the same with
 :meth:`RenderConfig.as_paper`: the paper's renderer exactly), ``ulr`` and ``splat`` on ``fused`` and
 ``gt``.
 
-Scores (0..255 colour units, :mod:`ibr_ros.core.rephoto`): the holes of every render (pixels no
+Scores (0..255 colour units, :mod:`ibr_ros.core.evaluation.rephoto`): the holes of every render (pixels no
 source covers) are filled by image inpainting (``cv2.inpaint`` Telea, radius 3) before scoring, as
 the paper fills COLMAP's holes "for fairness"; ``completeness`` is the rendered fraction and the
 ``*_unfilled`` numbers score the holes black. Per holdout and method: the AUC (= mean error) for
@@ -52,11 +52,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.mvs import MvsOptions, compute_depth_maps
-from ibr_ros.core.refine import DepthRefiner, RefineError, RefinerConfig
-from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
-from ibr_ros.core.rephoto import shiftable_l1
-from ibr_ros.core.sky import apply_sky_depth
+from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
+from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
+from ibr_ros.core.depth.sky import apply_sky_depth
+from ibr_ros.core.evaluation.rephoto import shiftable_l1
+from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import load_views, sparse_points, write_atomic
 from ibr_ros.jobs.synth_bag import GroundTruthRenderer
@@ -220,7 +220,7 @@ def _depth_sources(
 def _curve_stats(errors: NDArray[np.floating]) -> tuple[float, float, float, NDArray[np.float32]]:
     """AUC (mean), tail (mean of the worst 1 %), median and the sorted finite errors.
 
-    The definitions of :func:`ibr_ros.core.rephoto.score` (tested to agree with it).
+    The definitions of :func:`ibr_ros.core.evaluation.rephoto.score` (tested to agree with it).
     """
     e = np.asarray(errors, dtype=np.float32).ravel()
     e = np.sort(e[np.isfinite(e)])

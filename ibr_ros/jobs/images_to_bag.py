@@ -28,7 +28,7 @@ import numpy as np
 
 import msg_utils
 from ibr_ros.bag.writer import BagWriter
-from ibr_ros.core.geometry import quaternion_from_rotation
+from ibr_ros.core.geometry.transforms import quaternion_from_rotation
 from ibr_ros.errors import UserError
 from ibr_ros.io.exif import PhotoMetadata, initial_camera, read_photo_metadata
 

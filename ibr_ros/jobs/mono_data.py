@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import matrix_from_rt, rotation_from_ypr
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.synth import SceneConfig, build_scene, flight_camera, render_view
 
 __all__ = [

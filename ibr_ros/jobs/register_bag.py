@@ -1,8 +1,8 @@
-"""Register the camera images of a bag with SfM (:func:`ibr_ros.core.sfm.register_images`).
+"""Register the camera images of a bag with SfM (:func:`ibr_ros.core.registration.sfm.register_images`).
 
 Reads the image topic (``sensor_msgs/Image`` or ``CompressedImage``), the first ``CameraInfo`` as
 the initial intrinsics, and ``NavSatFix`` positions. GPS is converted to ENU metres with the first
-usable fix as origin (:mod:`ibr_ros.core.geodesy`) and interpolated linearly to each image's header
+usable fix as origin (:mod:`ibr_ros.core.geometry.geodesy`) and interpolated linearly to each image's header
 stamp; images further than ``max_gps_gap_s`` from a fix get NaN (unknown). Fixes with
 ``status < 0`` (no fix) or without altitude are ignored.
 """
@@ -18,9 +18,9 @@ from numpy.typing import NDArray
 
 import msg_utils
 from ibr_ros.bag import TopicSelection, detect_topics, open_bag
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geodesy import geodetic_to_enu
-from ibr_ros.core.sfm import SfmOptions, SfmResult, register_images
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.geodesy import geodetic_to_enu
+from ibr_ros.core.registration.sfm import SfmOptions, SfmResult, register_images
 from ibr_ros.errors import BagError
 
 __all__ = [
@@ -133,7 +133,7 @@ def register_bag(
 
     Raises:
         BagError: No image topic, or the bag cannot be read.
-        SfmError: Registration failed (see :func:`ibr_ros.core.sfm.register_images`).
+        SfmError: Registration failed (see :func:`ibr_ros.core.registration.sfm.register_images`).
 
     """
     with open_bag(path) as reader:

@@ -27,7 +27,7 @@ import numpy as np
 
 import msg_utils
 from ibr_ros.bag.writer import BagWriter
-from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.synth import (
     LABEL_NAMES,
     SceneConfig,

@@ -2,7 +2,7 @@
 
 :func:`mono_spec` and :func:`sky_spec` turn a model given by name or path plus an I/O preset name
 (the ``mono_model``/``mono_preset`` and ``sky_model``/``sky_preset`` parameters of the
-``depth_refiner`` node) into the specs of :mod:`ibr_ros.core.mono` and :mod:`ibr_ros.core.sky`.
+``depth_refiner`` node) into the specs of :mod:`ibr_ros.core.depth.mono` and :mod:`ibr_ros.core.depth.sky`.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 from ibr_ros.errors import UserError
 
 if TYPE_CHECKING:
-    from ibr_ros.core.mono import MonoModelSpec
-    from ibr_ros.core.sky import SkySpec
+    from ibr_ros.core.depth.mono import MonoModelSpec
+    from ibr_ros.core.depth.sky import SkySpec
 
 __all__ = ['SHIPPED_MODELS', 'SHIPPED_MONO_MODEL', 'mono_spec', 'sky_spec']
 
@@ -78,14 +78,14 @@ def _preset(
 def mono_spec(
     model: str, preset: str = '', *, param: str = 'mono_model', preset_param: str = 'mono_preset'
 ) -> MonoModelSpec:
-    """The :class:`~ibr_ros.core.mono.MonoModelSpec` of a monocular depth model.
+    """The :class:`~ibr_ros.core.depth.mono.MonoModelSpec` of a monocular depth model.
 
     ``model``: a shipped model name (``'ibr_mono'``), a model of ``ibr models list`` already fetched
     into the cache, or a path to an ``.onnx`` file. ``preset``: a name of
-    :data:`~ibr_ros.core.mono.PRESETS` ('' = the named model's own; required for a path). Raises
+    :data:`~ibr_ros.core.depth.mono.PRESETS` ('' = the named model's own; required for a path). Raises
     UserError naming ``param`` / ``preset_param`` and the value.
     """
-    from ibr_ros.core.mono import PRESETS
+    from ibr_ros.core.depth.mono import PRESETS
 
     path, default = _resolve(model, param, sky=False)
     return replace(PRESETS[_preset(preset, default, PRESETS, model, param, preset_param)], path=path)
@@ -94,11 +94,11 @@ def mono_spec(
 def sky_spec(
     model: str, preset: str = '', *, param: str = 'sky_model', preset_param: str = 'sky_preset'
 ) -> SkySpec:
-    """The :class:`~ibr_ros.core.sky.SkySpec` of a sky segmentation model (see :func:`mono_spec`).
+    """The :class:`~ibr_ros.core.depth.sky.SkySpec` of a sky segmentation model (see :func:`mono_spec`).
 
-    ``preset``: a name of :data:`~ibr_ros.core.sky.SKY_PRESETS` ('' = the named model's own).
+    ``preset``: a name of :data:`~ibr_ros.core.depth.sky.SKY_PRESETS` ('' = the named model's own).
     """
-    from ibr_ros.core.sky import SKY_PRESETS
+    from ibr_ros.core.depth.sky import SKY_PRESETS
 
     path, default = _resolve(model, param, sky=True)
     return replace(SKY_PRESETS[_preset(preset, default, SKY_PRESETS, model, param, preset_param)], path=path)

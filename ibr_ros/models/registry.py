@@ -27,7 +27,7 @@ CHUNK = 1 << 20
 class ModelEntry:
     """A downloadable model: documented URL, expected sha256 (hex), file name and its I/O preset.
 
-    ``preset`` names an entry of :data:`ibr_ros.core.mono.PRESETS` (depth models).
+    ``preset`` names an entry of :data:`ibr_ros.core.depth.mono.PRESETS` (depth models).
     ``sha256_source`` says where the checksum comes from.
     """
 

@@ -1,5 +1,5 @@
 """Shared plumbing of the ibr_ros nodes: QoS profiles, parameters with descriptors, bad-input
-accounting, matching messages by stamp (:class:`~ibr_ros.core.stamps.StampAssembler`, re-exported)
+accounting, matching messages by stamp (:class:`~ibr_ros.core.flight.stamps.StampAssembler`, re-exported)
 and the process entry point (init, spin, clean shutdown)."""
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from rclpy.qos import (
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 import msg_utils
-from ibr_ros.core.camera import CameraError
-from ibr_ros.core.geometry import GeometryError
-from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.core.flight.stamps import StampAssembler
+from ibr_ros.core.geometry.camera import CameraError
+from ibr_ros.core.geometry.transforms import GeometryError
 from ibr_ros.errors import UserError
 
 __all__ = [

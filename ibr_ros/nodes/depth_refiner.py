@@ -5,17 +5,17 @@ Subscribes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image
 identical header stamps.
 
 Also subscribes ``keyframes/status`` (``diagnostic_msgs/DiagnosticStatus``, latched; the
-frame_subsampler's :class:`~ibr_ros.core.live.FlightStatus`): whether the flight has poses (SfM mode
+frame_subsampler's :class:`~ibr_ros.core.flight.status.FlightStatus`): whether the flight has poses (SfM mode
 below) and whether the camera stream ended.
 
-A keyframe is refined once :func:`~ibr_ros.core.mvs.select_neighbours` finds ``min_neighbours``
+A keyframe is refined once :func:`~ibr_ros.core.depth.mvs.select_neighbours` finds ``min_neighbours``
 source views for it among the keyframes received so far, or, with at least one neighbour, once the
 status says the camera stream ended (the end of a flight; or, with ``flush_after_s`` > 0, when that
 long passed without a new keyframe). With ``refine_again`` it is
 refined again whenever more neighbours (up to ``max_neighbours``) become available. This policy is
-:class:`~ibr_ros.core.schedule.RefineScheduler`, shared with ``ibr process``. Refinement:
-:func:`~ibr_ros.core.mvs.compute_depth_maps` on the keyframe and its neighbours, then
-:meth:`~ibr_ros.core.refine.DepthRefiner.refine_from_mvs`.
+:class:`~ibr_ros.core.depth.schedule.RefineScheduler`, shared with ``ibr process``. Refinement:
+:func:`~ibr_ros.core.depth.mvs.compute_depth_maps` on the keyframe and its neighbours, then
+:meth:`~ibr_ros.core.depth.refine.DepthRefiner.refine_from_mvs`.
 
 Depth range of the MVS sweep: ``depth_range`` ``[near, far]`` (m) when set; else
 ``[near_ratio, far_ratio] x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
@@ -26,12 +26,12 @@ distance to the two nearest keyframes (the inverse of the frame_subsampler's 0.0
 ratio), with a warning to set ``scene_depth_m``.
 
 Monocular depth (fills the MVS holes after the per-view LUT remap): ``mono`` ``'plane'`` (default,
-:class:`~ibr_ros.core.mono.GroundPlanePrior`, no model) or ``'onnx'`` with ``mono_model``: ``'ibr_mono'``
+:class:`~ibr_ros.core.depth.GroundPlanePrior`, no model) or ``'onnx'`` with ``mono_model``: ``'ibr_mono'``
 (the shipped ``ibr_ros/models/ibr_mono.onnx``), a model of ``ibr models list`` fetched into the cache,
 or a path to an ``.onnx`` file; ``mono_preset`` names its I/O convention in
-:data:`~ibr_ros.core.mono.PRESETS` (``''``: the named model's own; required for a path). Sky mask:
+:data:`~ibr_ros.core.depth.mono.PRESETS` (``''``: the named model's own; required for a path). Sky mask:
 ``sky`` ``'fallback'`` (default; horizon + colour cues + no MVS depth), ``'onnx'`` with ``sky_model``
-/ ``sky_preset`` likewise (:data:`~ibr_ros.core.sky.SKY_PRESETS`; ``'ibr_mono'`` is the shipped
+/ ``sky_preset`` likewise (:data:`~ibr_ros.core.depth.sky.SKY_PRESETS`; ``'ibr_mono'`` is the shipped
 model's sky head) or ``'none'``. A bad value (unknown name or preset, missing or unloadable file)
 stops the node at start-up with one error line naming the parameter and value (exit status 2).
 
@@ -46,17 +46,17 @@ turbo-coloured inverse depth).
 
 Sharding: with ``num_workers`` > 1 every process receives all keyframes (they are everybody's
 neighbours) but refines only those whose stamp hashes to its ``worker_index``
-(:func:`~ibr_ros.core.schedule.shard_of`, independent of arrival order), so each keyframe is
+(:func:`~ibr_ros.core.depth.schedule.shard_of`, independent of arrival order), so each keyframe is
 refined once. Workers publish a heartbeat on ``refiners/heartbeat`` (``DiagnosticStatus``, every
 ``worker_lease_s`` / 3 s); a worker not heard from for ``worker_lease_s`` is dead and its
-unrefined keyframes go to the live ones (:class:`~ibr_ros.core.live.ShardMembership`). Every worker
+unrefined keyframes go to the live ones (:class:`~ibr_ros.core.flight.status.ShardMembership`). Every worker
 subscribes ``keyframes/depth``: a keyframe whose depth is already published (by a live worker, or
 mirrored from a dead one) is never refined again, so a restarted worker picks up where it stopped.
 
 SfM mode (keyframes without poses): with ``sfm_mode`` ``'always'``, or ``'auto'`` once the
 frame_subsampler's status says the flight has no poses (never on a timer: until the status comes,
 keyframes wait for their poses, however late), keyframes are registered by
-:class:`~ibr_ros.core.sfm_session.SfmSession` (pycolmap on the CPU, the CameraInfo intrinsics as the
+:class:`~ibr_ros.core.registration.SfmSession` (pycolmap on the CPU, the CameraInfo intrinsics as the
 prior, images downscaled to ``sfm_max_side``) instead of waiting for ``keyframes/pose``, which is
 then ignored (it carries this node's own poses). The first registration runs once
 ``sfm_min_keyframes`` keyframes are there, the next ones after every ``sfm_every`` new keyframes and
@@ -93,14 +93,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.live import FlightStatus, ShardMembership
-from ibr_ros.core.mono import MonoModelError
-from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
-from ibr_ros.core.refine import DepthRefiner, RefineError
-from ibr_ros.core.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
-from ibr_ros.core.sfm import SfmError
-from ibr_ros.core.sfm_session import SfmSession
+from ibr_ros.core.depth.mono import MonoModelError
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
+from ibr_ros.core.depth.refine import DepthRefiner, RefineError
+from ibr_ros.core.depth.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
+from ibr_ros.core.flight.status import FlightStatus, ShardMembership
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.registration.sfm import SfmError
+from ibr_ros.core.registration.sfm_session import SfmSession
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.warmup import warm_up_refiner
 from ibr_ros.node_config import refiner_config, sfm_settings

@@ -12,9 +12,9 @@ Messages of one frame are matched by identical header stamps.
 Publishes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image`` rgb8),
 ``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), all three with the
 frame's header stamp; ``keyframes/status`` (``diagnostic_msgs/DiagnosticStatus``, depth 1, on every
-change; :class:`~ibr_ros.core.live.FlightStatus`): the flight's pose source (``pose`` / ``none``),
+change; :class:`~ibr_ros.core.flight.status.FlightStatus`): the flight's pose source (``pose`` / ``none``),
 the camera stream (``waiting`` / ``streaming`` / ``ended``: every camera publisher gone), frames
-and keyframes so far. Decisions: :class:`ibr_ros.core.keyframes.KeyframeSelector`: a sharp frame
+and keyframes so far. Decisions: :class:`ibr_ros.core.flight.keyframes.KeyframeSelector`: a sharp frame
 becomes a keyframe when the camera moved ``baseline_ratio`` x ``scene_depth_m`` (``min_baseline_m``
 when ``scene_depth_m`` is 0) from the last keyframe, turned ``max_rotation_deg`` or after
 ``max_interval_s``.
@@ -24,13 +24,13 @@ Target count (``target_keyframes`` > 0): live, the flight's length is unknown, s
 uses ONE baseline threshold of ``expected_path_m / target_keyframes`` metres (:func:`target_baseline`)
 in place of ``baseline_ratio`` x ``scene_depth_m`` and ``min_baseline_m``; the rotation, interval and
 blur rules are unchanged. ``ibr process`` knows the whole flight and meets the target by bisection
-instead (:func:`ibr_ros.core.keyframes.select_keyframes`; ``expected_path_m`` is not used there).
+instead (:func:`ibr_ros.core.flight.keyframes.select_keyframes`; ``expected_path_m`` is not used there).
 
-Pose source (:class:`~ibr_ros.core.live.PoseSource`; ``pose_source``): ``auto`` decides when the
+Pose source (:class:`~ibr_ros.core.flight.status.PoseSource`; ``pose_source``): ``auto`` decides when the
 first frame's image and camera_info are there: the flight has poses when ``camera/pose`` has a
 publisher then (every frame waits for its pose, however late), else none; ``topic`` always waits for
 poses; ``none`` ignores them. Without poses the sharpest unblurred frame of every
-``poseless_interval_s`` window of stamps is a keyframe (:class:`ibr_ros.core.keyframes.IntervalSelector`;
+``poseless_interval_s`` window of stamps is a keyframe (:class:`ibr_ros.core.flight.IntervalSelector`;
 a window's keyframe is published when the next window starts or the camera stream ends), published
 on ``keyframes/image`` and ``keyframes/camera_info`` only; the depth_refiner registers them (its SfM
 mode). The decision holds for the flight: poses arriving later are counted (``pose_ignored``) and
@@ -51,8 +51,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
-from ibr_ros.core.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
-from ibr_ros.core.live import IMAGE_TRANSPORTS, FlightStatus, PoseSource
+from ibr_ros.core.flight.keyframes import IntervalSelector, KeyframeConfig, KeyframeSelector, blur_score
+from ibr_ros.core.flight.status import IMAGE_TRANSPORTS, FlightStatus, PoseSource
 from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
@@ -65,7 +65,7 @@ from ibr_ros.nodes.common import (
     subscribe_field,
 )
 
-#: Image topic (:data:`~ibr_ros.core.live.IMAGE_TRANSPORTS`) -> its message type.
+#: Image topic (:data:`~ibr_ros.core.flight.status.IMAGE_TRANSPORTS`) -> its message type.
 IMAGE_TYPES = {'camera/image_raw': Image, 'camera/image_raw/compressed': CompressedImage}
 
 #: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.

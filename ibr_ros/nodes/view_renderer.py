@@ -7,7 +7,7 @@ model already published): ``keyframes/image`` (``sensor_msgs/Image``), ``keyfram
 it (a refiner's ``refine_again``) replaces the old one; copies of what the model holds (refiners
 mirror the model) are ignored, and a depth with no known value is rejected (counted, WARN), never
 swapped in for a good one. Superpixels and warp data of a new view are
-computed when it arrives (:meth:`~ibr_ros.core.render.NovelViewRenderer.prepare`), not on a query.
+computed when it arrives (:meth:`~ibr_ros.core.render.renderer.NovelViewRenderer.prepare`), not on a query.
 
 Queries: ``novel_view/query`` (``geometry_msgs/PoseStamped``, reliable): camera-to-world pose of
 the desired optical frame in the model's frame (``map``; an empty frame_id is taken as it).
@@ -40,8 +40,8 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
 from ibr_ros.jobs.warmup import warm_up_renderer
 from ibr_ros.node_config import RENDER_PARAMETERS, render_config
 from ibr_ros.nodes.common import (

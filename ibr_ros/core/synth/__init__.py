@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 
-from ibr_ros.core.camera import PinholeCamera
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.synth.render import (
     LABEL_BUILDING_WALL,
     LABEL_GROUND,

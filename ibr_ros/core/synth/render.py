@@ -27,8 +27,8 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import validate_pose
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import validate_pose
 from ibr_ros.core.synth.scene import FACADE_STONE, FACADE_UNIFORM, PARAM_INDEX, Scene
 
 __all__ = [

@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.geometry import matrix_from_rt, rotation_from_ypr
+from ibr_ros.core.geometry.transforms import matrix_from_rt, rotation_from_ypr
 
 __all__ = ['TrajectoryKind', 'TrajectorySample', 'make_trajectory']
 

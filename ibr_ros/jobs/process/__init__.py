@@ -4,9 +4,9 @@ The same core code as the nodes, run synchronously in bag-time order (determinis
 
 1. subsample: camera image (``Image`` or ``CompressedImage``), ``CameraInfo`` and pose
    (``PoseStamped`` or ``Odometry``) matched by identical header stamps, then blur score +
-   :class:`~ibr_ros.core.keyframes.KeyframeSelector` with the frame_subsampler's parameters, frame
+   :class:`~ibr_ros.core.flight.keyframes.KeyframeSelector` with the frame_subsampler's parameters, frame
    by frame as live; or, with its ``target_keyframes`` > 0 (``ProcessOptions.target_keyframes``
-   overrides it) on a bag with poses, :func:`~ibr_ros.core.keyframes.select_keyframes` over the
+   overrides it) on a bag with poses, :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the
    whole flight: the same blur scores, ``KeyframeConfig`` and ``scene_depth_m``, with
    ``baseline_ratio`` and ``min_baseline_m`` scaled by the common factor that gives about
    ``target_keyframes`` (the frame_subsampler's ``expected_path_m`` is not used: the flight is
@@ -14,21 +14,21 @@ The same core code as the nodes, run synchronously in bag-time order (determinis
    frames' images (no other image decoded); the summary's ``keyframe_selection`` gives the method,
    and for a target the count and the scale;
 2. MVS + refine: once the whole flight is known, every keyframe (oldest first) is refined once
-   with the neighbours and depth range :class:`~ibr_ros.core.schedule.RefineScheduler` gives it
+   with the neighbours and depth range :class:`~ibr_ros.core.depth.schedule.RefineScheduler` gives it
    (the depth_refiner's policy at the end of a flight), by
-   :func:`~ibr_ros.core.mvs.compute_depth_maps` and
-   :meth:`~ibr_ros.core.refine.DepthRefiner.refine_from_mvs`;
-3. render: :class:`~ibr_ros.core.render.NovelViewRenderer` (the view_renderer's parameters) at
+   :func:`~ibr_ros.core.depth.mvs.compute_depth_maps` and
+   :meth:`~ibr_ros.core.depth.refine.DepthRefiner.refine_from_mvs`;
+3. render: :class:`~ibr_ros.core.render.renderer.NovelViewRenderer` (the view_renderer's parameters) at
    ``views`` poses along the keyframe path (:func:`ibr_ros.jobs.demo.interpolate_path`).
 
 SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a bag without a pose
 topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm`` (its poses
 are then ignored). Keyframes are chosen without poses as the frame_subsampler does without poses
 (its ``pose_source`` ``auto``; ``topic`` refuses, ``none`` always): the sharpest unblurred frame of
-every ``poseless_interval_s`` window (:class:`~ibr_ros.core.keyframes.IntervalSelector`). With
+every ``poseless_interval_s`` window (:class:`~ibr_ros.core.flight.keyframes.IntervalSelector`). With
 ``sfm_mode`` ``always`` on a bag with poses the keyframes are chosen by pose (as live) and their
 poses ignored. Then all keyframes (at least ``sfm_min_keyframes``) are registered together by ONE
-:meth:`~ibr_ros.core.sfm_session.SfmSession.update` (images downscaled to ``sfm_max_side``; no
+:meth:`~ibr_ros.core.registration.sfm_session.SfmSession.update` (images downscaled to ``sfm_max_side``; no
 incremental updates offline), with GPS positions from the bag's ``NavSatFix`` topic when there is
 one (converted to ENU metres with the first usable fix as origin and interpolated linearly to the
 keyframe stamps, at most :data:`GPS_MAX_GAP_S` from a fix, as ``ibr register`` does). Frame of the
@@ -37,7 +37,7 @@ the documented ``sfm`` frame (frame_id ``sfm``; unit = the first keyframe baseli
 ``sfm_scale`` + ``sfm_scale_m``; without a scale ``depth_range`` and ``scene_depth_m`` are ignored,
 like the node). Unregistered keyframes are dropped (logged, and listed in the summary). The
 registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, possibly an initial
-guess) and are undistorted with it (:func:`~ibr_ros.core.undistort.undistort_image`, valid pixels
+guess) and are undistorted with it (:func:`~ibr_ros.core.geometry.undistort.undistort_image`, valid pixels
 only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
 
 Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 params file

@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ibr_ros.core.geometry import rotation_angle_deg, similarity_times_pose
-from ibr_ros.core.sfm import similarity_from_orientations
+from ibr_ros.core.geometry.transforms import rotation_angle_deg, similarity_times_pose
+from ibr_ros.core.registration.sfm import similarity_from_orientations
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
 from ibr_ros.jobs.process.frames import Keyframe
@@ -90,7 +90,7 @@ def _evaluate(
     """Previews, and errors against the exact ground truth when ``bag`` is a synthetic bag (in SfM
     mode after a similarity fit of SfM's camera centres to the bag's poses, when it has them).
     """
-    from ibr_ros.core.rephoto import score
+    from ibr_ros.core.evaluation.rephoto import score
     from ibr_ros.jobs.synth_bag import GroundTruthRenderer
 
     gt = GroundTruthRenderer(bag) if (bag / 'synth.json').is_file() else None

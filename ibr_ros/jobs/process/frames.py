@@ -17,16 +17,16 @@ import numpy as np
 import msg_utils
 from ibr_ros.bag import BagReader, detect_topics, open_bag
 from ibr_ros.bag.detect import ODOMETRY, POSE_STAMPED
-from ibr_ros.core.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry import GeometryError
-from ibr_ros.core.keyframes import (
+from ibr_ros.core.flight.keyframes import (
     IntervalSelector,
     KeyframeSelector,
     TargetSelection,
     blur_score,
     select_keyframes_for_target,
 )
-from ibr_ros.core.stamps import StampAssembler
+from ibr_ros.core.flight.stamps import StampAssembler
+from ibr_ros.core.geometry.camera import CameraError, PinholeCamera
+from ibr_ros.core.geometry.transforms import GeometryError
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions, Progress
 from ibr_ros.jobs.process.params import _Configs
@@ -234,7 +234,7 @@ def _select_topics(
 def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress | None) -> _Subsampled:
     """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
     mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
-    :func:`~ibr_ros.core.keyframes.select_keyframes` over the whole flight instead (two passes).
+    :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the whole flight instead (two passes).
     """
     decisions: Counter = Counter()
     keyframes: list[Keyframe] = []

@@ -11,13 +11,13 @@ from typing import TypeVar
 
 import yaml
 
-from ibr_ros.core.keyframes import KeyframeConfig
-from ibr_ros.core.live import POSE_MODES
-from ibr_ros.core.mvs import MvsOptions
-from ibr_ros.core.refine import RefinerConfig
-from ibr_ros.core.render import RenderConfig
-from ibr_ros.core.schedule import ScheduleConfig, parse_depth_range
-from ibr_ros.core.sfm_session import ScaleHint
+from ibr_ros.core.depth.mvs import MvsOptions
+from ibr_ros.core.depth.refine import RefinerConfig
+from ibr_ros.core.depth.schedule import ScheduleConfig, parse_depth_range
+from ibr_ros.core.flight.keyframes import KeyframeConfig
+from ibr_ros.core.flight.status import POSE_MODES
+from ibr_ros.core.registration.sfm_session import ScaleHint
+from ibr_ros.core.render.renderer import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
 from ibr_ros.node_config import refiner_config, render_config, sfm_settings

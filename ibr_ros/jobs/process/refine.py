@@ -5,10 +5,10 @@ from __future__ import annotations
 import logging
 import time
 
-from ibr_ros.core.mono import MonoModelError
-from ibr_ros.core.mvs import MvsView, compute_depth_maps
-from ibr_ros.core.refine import DepthRefiner, RefineError
-from ibr_ros.core.schedule import RefineScheduler
+from ibr_ros.core.depth.mono import MonoModelError
+from ibr_ros.core.depth.mvs import MvsView, compute_depth_maps
+from ibr_ros.core.depth.refine import DepthRefiner, RefineError
+from ibr_ros.core.depth.schedule import RefineScheduler
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.frames import BAD_MESSAGE, Keyframe
 from ibr_ros.jobs.process.options import Progress

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
 from ibr_ros.jobs.demo import interpolate_path, path_pairs
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress

@@ -9,10 +9,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.sfm import SfmError, SfmOptions
-from ibr_ros.core.sfm_session import SfmSession, SfmUpdate
-from ibr_ros.core.undistort import undistort_image
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.undistort import undistort_image
+from ibr_ros.core.registration.sfm import SfmError, SfmOptions
+from ibr_ros.core.registration.sfm_session import SfmSession, SfmUpdate
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.frames import Keyframe, _Subsampled
 from ibr_ros.jobs.process.options import Progress

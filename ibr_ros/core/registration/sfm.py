@@ -2,7 +2,7 @@
 
 :func:`register_images` writes the images to a work folder, extracts SIFT features, matches them,
 runs COLMAP's incremental mapper with ONE camera shared by all images and converts the largest
-reconstruction to ibr_ros conventions (:mod:`ibr_ros.core.geometry`, :mod:`ibr_ros.core.camera`):
+reconstruction to ibr_ros conventions (:mod:`ibr_ros.core.geometry`):
 
 * poses are 4x4 camera-to-world ``T_wc`` (the inverse of COLMAP's ``cam_from_world``); COLMAP's
   camera frame has the same axes as the REP-103 optical frame (z forward, x right, y down);
@@ -39,8 +39,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.colmap import pycolmap as _import_pycolmap
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.registration.colmap import pycolmap as _import_pycolmap
 
 pycolmap = _import_pycolmap()
 

@@ -2,7 +2,7 @@
 
 Every backend produces the paper's G(x) (Section III-A): ``uint16`` 0..65535, larger = nearer, 0 for
 pixels with no finite prediction (sky / infinitely far). G is only a *relative* ordering; the
-per-view lookup table of :mod:`ibr_ros.core.remap` gives it the MVS scale.
+per-view lookup table of :mod:`ibr_ros.core.depth.remap` gives it the MVS scale.
 
 ONNX I/O convention (:class:`MonoModelSpec`): the RGB uint8 image is resized to the model input,
 scaled to [0, 1], normalised ``(x - mean) / std`` per channel, laid out NCHW or NHWC in RGB or BGR
@@ -17,16 +17,20 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-
-if TYPE_CHECKING:
-    import onnxruntime as ort
+from ibr_ros.core.depth.onnx import (
+    IMAGENET_MEAN,
+    IMAGENET_STD,
+    MonoModelError,
+    onnx_session,
+    to_input_tensor,
+)
+from ibr_ros.core.geometry.camera import PinholeCamera
 
 __all__ = [
     'PRESETS',
@@ -34,21 +38,12 @@ __all__ = [
     'MonoModelError',
     'MonoModelSpec',
     'OnnxMonoDepth',
-    'fit_ground_plane',
     'nearness_to_g',
-    'onnx_session',
-    'to_input_tensor',
 ]
 
 LOG = logging.getLogger(__name__)
 
 OutputKind = Literal['inverse_depth', 'depth', 'log_depth']
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
-
-
-class MonoModelError(ValueError):
-    """A model file or specification that cannot be used."""
 
 
 @dataclass(frozen=True)
@@ -143,40 +138,6 @@ def nearness_to_g(
     return g
 
 
-def onnx_session(path: Path | str | None, threads: int, what: str = 'model') -> ort.InferenceSession:
-    """An onnxruntime CPU session of ``path`` with ``threads`` intra-op threads and one inter-op thread.
-
-    Raises MonoModelError (naming ``what`` and the path) for a missing file or a model onnxruntime
-    cannot load.
-    """
-    import onnxruntime as ort  # lazily: only callers with a model pay for the import
-
-    if path is None or not Path(path).is_file():
-        raise MonoModelError(f'{what} path {path} is not a file')
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = threads
-    opts.inter_op_num_threads = 1
-    try:
-        return ort.InferenceSession(str(path), opts, providers=['CPUExecutionProvider'])
-    except Exception as exc:  # onnxruntime raises its own exception types
-        raise MonoModelError(f'{path}: cannot load ONNX model ({exc})') from exc
-
-
-def to_input_tensor(
-    resized: NDArray[np.uint8],
-    color_order: Literal['RGB', 'BGR'],
-    mean: tuple[float, float, float],
-    std: tuple[float, float, float],
-    layout: Literal['NCHW', 'NHWC'],
-) -> NDArray[np.float32]:
-    """A batch of one: an RGB uint8 image already at the model size, reordered, in [0, 1], normalised
-    ``(x - mean) / std`` and laid out as ``layout``."""
-    x = resized[..., ::-1] if color_order == 'BGR' else resized
-    x = (x.astype(np.float32) / 255.0 - np.float32(mean)) / np.float32(std)
-    x = x.transpose(2, 0, 1) if layout == 'NCHW' else x
-    return np.ascontiguousarray(x[None], dtype=np.float32)
-
-
 class OnnxMonoDepth:
     """Monocular depth from an ONNX model with onnxruntime on the CPU."""
 
@@ -226,47 +187,6 @@ class OnnxMonoDepth:
     def predict_g(self, rgb: NDArray[np.uint8]) -> NDArray[np.uint16]:
         """The paper's G(x) for an RGB image."""
         return nearness_to_g(self.predict_nearness(rgb))
-
-
-def fit_ground_plane(
-    points_w: NDArray[np.floating],
-    *,
-    iterations: int = 100,
-    inlier_m: float | None = None,
-    seed: int = 0,
-    max_points: int = 5000,
-) -> NDArray[np.float64]:
-    """Robust plane ``n . p + d = 0`` (``n`` unit, pointing up: n_z > 0) through Nx3 world points.
-
-    RANSAC on 3-point samples (on at most ``max_points`` random points), then a least-squares refit
-    on the inliers. ``inlier_m`` defaults to 2% of the points' spread. Returns ``(nx, ny, nz, d)``.
-    """
-    p = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
-    p = p[np.isfinite(p).all(axis=1)]
-    if len(p) > max_points:
-        p = p[np.random.default_rng(seed).choice(len(p), max_points, replace=False)]
-    if len(p) < 3:
-        raise ValueError(f'points_w needs >= 3 finite points to fit a plane, got {len(p)}')
-    spread = float(np.linalg.norm(p.std(axis=0)))
-    tol = inlier_m if inlier_m is not None else max(0.02 * spread, 1e-6)
-    rng = np.random.default_rng(seed)
-    best = np.zeros(len(p), bool)
-    for _ in range(iterations):
-        a, b, c = p[rng.choice(len(p), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        norm = np.linalg.norm(n)
-        if norm < 1e-12:
-            continue
-        n /= norm
-        inl = np.abs((p - a) @ n) < tol
-        if inl.sum() > best.sum():
-            best = inl
-    q = p[best] if best.sum() >= 3 else p
-    centre = q.mean(axis=0)
-    n = np.linalg.svd(q - centre, full_matrices=False)[2][-1]
-    if n[2] < 0:
-        n = -n
-    return np.array([*n, -float(n @ centre)])
 
 
 @dataclass

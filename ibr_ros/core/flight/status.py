@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields
 
-from ibr_ros.core.schedule import shard_of
+from ibr_ros.core.depth.schedule import shard_of
 
 __all__ = [
     'CAMERA_STATES',
@@ -126,7 +126,7 @@ class ShardMembership:
     A worker is alive while its heartbeats arrive within ``lease_s`` of each other (this worker always
     is). A worker never heard from counts as alive for the first ``lease_s`` after this one started,
     so that workers starting together do not take each other's keyframes. A keyframe belongs to its
-    :func:`~ibr_ros.core.schedule.shard_of` worker while that one is alive, else to one of the live
+    :func:`~ibr_ros.core.depth.schedule.shard_of` worker while that one is alive, else to one of the live
     workers, chosen by the same hash over their sorted indices (every worker with the same view of
     who is alive picks the same one). :meth:`synced`: every worker presumed alive has been heard from
     at least once (its heartbeat lists the keyframes whose depth it published), so this worker knows

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.geometry import rotation_angle_deg
+from ibr_ros.core.geometry.transforms import rotation_angle_deg
 
 __all__ = [
     'Decision',

@@ -1,6 +1,6 @@
 """Lens undistortion of images and pixel coordinates with OpenCV (plumb_bob, rational_polynomial).
 
-Pixel conventions as in :mod:`ibr_ros.core.camera`. The rectification rotation ``R`` and the
+Pixel conventions as in :mod:`ibr_ros.core.geometry.camera`. The rectification rotation ``R`` and the
 projection ``P`` of a stereo pair are not applied: this removes lens distortion only.
 """
 
@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ibr_ros.core.camera import CameraError, PinholeCamera
+from ibr_ros.core.geometry.camera import CameraError, PinholeCamera
 
 __all__ = ['undistort_image', 'undistort_points']
 

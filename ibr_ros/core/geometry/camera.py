@@ -166,7 +166,7 @@ class PinholeCamera:
     def project(self, points_c: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Project Nx3 optical-frame points; return (Nx2 pixels, N depths z in metres).
 
-        Distortion is ignored (use :mod:`ibr_ros.core.undistort` first); points with z <= 0 get NaN.
+        Distortion is ignored (use :mod:`ibr_ros.core.geometry.undistort` first); points with z <= 0 get NaN.
         """
         pts = np.asarray(points_c, dtype=np.float64).reshape(-1, 3)
         z = pts[:, 2]

@@ -32,7 +32,8 @@ depth maps agree after a forward-backward reprojection (COLMAP's ``filter_min_nu
 
 Output depth: float32 z-depth in metres, 0 = unknown (sky, low texture, occlusions, ambiguity).
 Pixels: centre of the top-left pixel at (0, 0); poses: 4x4 camera-to-world ``T_wc``
-(:mod:`ibr_ros.core.geometry`). Images must be undistorted (:mod:`ibr_ros.core.undistort`).
+(:mod:`ibr_ros.core.geometry.transforms`). Images must be undistorted
+(:mod:`ibr_ros.core.geometry.undistort`).
 
 ``backend='colmap'`` runs ``pycolmap.patch_match_stereo`` instead; it needs a CUDA build of
 pycolmap and raises :class:`MvsBackendUnavailable` otherwise.
@@ -53,8 +54,8 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import validate_pose
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import validate_pose
 
 __all__ = [
     'REASON_NO_DEPTH_RANGE',
@@ -986,7 +987,7 @@ def _colmap_depth_maps(
     ``photometric_depth`` is COLMAP's photometric map, ``depth`` its geometric one; COLMAP does not
     report per-pixel consistency counts, so ``n_consistent`` is ``min_consistent`` where kept.
     """
-    from ibr_ros.core.colmap import pycolmap as _import_pycolmap
+    from ibr_ros.core.registration.colmap import pycolmap as _import_pycolmap
 
     pycolmap = _import_pycolmap()
     if not getattr(pycolmap, 'has_cuda', False):

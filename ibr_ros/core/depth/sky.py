@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.mono import IMAGENET_MEAN, IMAGENET_STD, MonoModelError, onnx_session, to_input_tensor
+from ibr_ros.core.depth.onnx import IMAGENET_MEAN, IMAGENET_STD, MonoModelError, onnx_session, to_input_tensor
+from ibr_ros.core.geometry.camera import PinholeCamera
 
 __all__ = [
     'SKY_PRESETS',
@@ -33,7 +33,7 @@ __all__ = [
 class SkySpec:
     """How to run an ONNX segmentation model and read the sky out of it.
 
-    Input handling is as for :class:`ibr_ros.core.mono.MonoModelSpec`. ``output`` is ``logits`` /
+    Input handling is as for :class:`ibr_ros.core.depth.mono.MonoModelSpec`. ``output`` is ``logits`` /
     ``probabilities`` (1xCxHxW, the sky is class ``sky_class``) or ``sky_logit`` (one channel,
     sigmoid > 0.5 = sky).
     """

@@ -16,12 +16,13 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.fusion import fuse_depth
-from ibr_ros.core.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth, fit_ground_plane
-from ibr_ros.core.mvs import MvsOptions, MvsView, compute_depth_maps
-from ibr_ros.core.prune import prune_depth
-from ibr_ros.core.remap import lut_remap
-from ibr_ros.core.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, sky_fallback
+from ibr_ros.core.depth.fusion import fuse_depth
+from ibr_ros.core.depth.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
+from ibr_ros.core.depth.prune import prune_depth
+from ibr_ros.core.depth.remap import lut_remap
+from ibr_ros.core.depth.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, sky_fallback
+from ibr_ros.core.geometry.plane import fit_ground_plane
 
 __all__ = ['DepthRefiner', 'RefineError', 'RefinedDepth', 'RefinerConfig']
 
@@ -137,7 +138,7 @@ class DepthRefiner:
 
         MVS computes the photometric depth of ``view`` and of every neighbour so that the
         geometric filter can check ``view``'s depth against them (about 5x the cost of one view;
-        batch whole keyframe sets with :func:`ibr_ros.core.mvs.compute_depth_maps` instead).
+        batch whole keyframe sets with :func:`ibr_ros.core.depth.mvs.compute_depth_maps` instead).
         """
         t0 = time.perf_counter()
         if d_mvs is None:

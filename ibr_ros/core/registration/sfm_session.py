@@ -2,7 +2,7 @@
 
 Views (RGB uint8, a :class:`PinholeCamera` from their CameraInfo, a stamp in ns, optionally a GPS
 position in ENU metres) are accumulated with :meth:`SfmSession.add`; every :meth:`SfmSession.update`
-re-runs :func:`~ibr_ros.core.sfm.register_images` over all of them (one shared camera, the first
+re-runs :func:`~ibr_ros.core.registration.sfm.register_images` over all of them (one shared camera, the first
 view's intrinsics as the prior) and returns a ``T_wc`` (4x4 camera-to-world, REP-103 optical
 frame) or None (not registered) per stamp.
 
@@ -21,7 +21,7 @@ World frame of the results (``SfmUpdate.frame``), fixed by the first accepted up
   accurate as the hint.
 
 Later updates are expressed in the frame of the previous one: a similarity fitted to the common
-registered camera centres (:func:`~ibr_ros.core.sfm.robust_similarity`; for collinear centres the
+registered camera centres (:func:`~ibr_ros.core.registration.sfm.robust_similarity`; for collinear centres the
 rotation is averaged from the camera orientations instead), so already-published poses and depths
 keep one frame and scale. A common view counts as consistent when its centre moved by less than
 ``inlier_ratio`` x the median spacing of the common centres and its orientation by less than
@@ -47,10 +47,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import matrix_from_rt, rotation_angle_deg, similarity_times_pose
-from ibr_ros.core.mono import fit_ground_plane
-from ibr_ros.core.sfm import (
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.plane import fit_ground_plane
+from ibr_ros.core.geometry.transforms import matrix_from_rt, rotation_angle_deg, similarity_times_pose
+from ibr_ros.core.registration.sfm import (
     SfmError,
     SfmOptions,
     SfmResult,

@@ -8,9 +8,9 @@ no image work itself.
   neighbours) but refines only those whose stamp hashes to its ``worker_index`` (:func:`shard_of`,
   independent of arrival order), so each keyframe is refined exactly once.
   :meth:`RefineScheduler.reassign` changes the rule (a dead worker's keyframes go to the live ones,
-  :class:`~ibr_ros.core.live.ShardMembership`) and :meth:`RefineScheduler.published_elsewhere` marks
+  :class:`~ibr_ros.core.flight.status.ShardMembership`) and :meth:`RefineScheduler.published_elsewhere` marks
   keyframes whose depth another worker published.
-* Due: a keyframe of this worker is due once :func:`~ibr_ros.core.mvs.select_neighbours` finds
+* Due: a keyframe of this worker is due once :func:`~ibr_ros.core.depth.mvs.select_neighbours` finds
   ``min_neighbours`` source views among the keyframes added so far, or, with ``flush`` (the end of
   a flight), at least one; never again with the same or fewer neighbours than a failed attempt.
   With ``refine_again`` a refined keyframe is due again whenever more neighbours (up to
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ibr_ros.core.mvs import MvsOptions, MvsView, select_neighbours
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, select_neighbours
 
 __all__ = [
     'RefineJob',
@@ -138,7 +138,7 @@ class ScheduleConfig:
 
     @property
     def neighbour_options(self) -> dict[str, float]:
-        """Keyword arguments of :func:`~ibr_ros.core.mvs.select_neighbours` taken from ``mvs``."""
+        """Keyword arguments of :func:`~ibr_ros.core.depth.mvs.select_neighbours` taken from ``mvs``."""
         return {k: getattr(self.mvs, k) for k in _NEIGHBOUR_OPTIONS}
 
 

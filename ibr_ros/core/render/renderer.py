@@ -10,11 +10,11 @@
    (4, at most 4) with the nearest camera centres. Views without depth, with an invalid pose or
    without a single warpable superpixel are skipped (``Rendered.skipped_views``).
 2. Per view (cached, see below): SLIC superpixels, their statistics and a
-   :class:`~ibr_ros.core.warp.WarpModel`. *Added* (``depth_split``): superpixels that straddle a
+   :class:`~ibr_ros.core.render.warp.WarpModel`. *Added* (``depth_split``): superpixels that straddle a
    depth step of more than 2 % are split along it first
-   (:func:`~ibr_ros.core.superpixels.split_at_depth_edges`), so that no superpixel smears a roof
+   (:func:`~ibr_ros.core.render.superpixels.split_at_depth_edges`), so that no superpixel smears a roof
    edge over the street below; 1500 SLIC superpixels become about 2600-4000. Per query every
-   superpixel is warped by the shape-preserving warp (:func:`~ibr_ros.core.warp.warp_superpixels`);
+   superpixel is warped by the shape-preserving warp (:func:`~ibr_ros.core.render.warp.warp_superpixels`);
    superpixels whose reprojected median depth (or any sample) is at ``z <= near`` are dropped (the
    depth test of the paper), as are warps that flip the triangle or magnify it by more than
    ``max_magnification`` (linear).
@@ -50,7 +50,7 @@
    Sky superpixels are warped by rotation only and get penalty 0 (so the
    nearest view supplies the sky). *Added* (``depth_lookup_steps``, 2): in superpixels whose
    affine warp misses its own reprojection samples by more than ``depth_lookup_min_fit_px``
-   (0.08 px RMS, :attr:`~ibr_ros.core.warp.WarpResult.fit_px`), the affine pre-image of each
+   (0.08 px RMS, :attr:`~ibr_ros.core.render.warp.WarpResult.fit_px`), the affine pre-image of each
    pixel is corrected by Newton steps that reproject the source pixel at its own depth into the
    novel view (by at most ``depth_lookup_max_px``, 1 px), so the colour comes from where the depth
    map says rather than from the affine approximation: thin trunks and fine ground texture stay
@@ -114,10 +114,10 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.geometry import GeometryError, validate_pose
-from ibr_ros.core.superpixels import slic, split_at_depth_edges, superpixel_stats
-from ibr_ros.core.warp import WarpModel, prepare_warp, project_pixel, warp_superpixels
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import GeometryError, validate_pose
+from ibr_ros.core.render.superpixels import slic, split_at_depth_edges, superpixel_stats
+from ibr_ros.core.render.warp import WarpModel, prepare_warp, project_pixel, warp_superpixels
 
 __all__ = ['PAPER_FIELDS', 'NovelViewRenderer', 'RenderConfig', 'Rendered', 'SourceView']
 
@@ -172,7 +172,7 @@ class RenderConfig:
             term ``max(0, (|a - C_s| - |a - C_n|) / |a - C_s|)`` (0: the paper's angle only).
         depth_split, depth_split_levels, depth_split_min_px: split superpixels at depth steps larger
             than ``depth_split`` (log depth; None: off) before warping, see
-            :func:`~ibr_ros.core.superpixels.split_at_depth_edges`.
+            :func:`~ibr_ros.core.render.superpixels.split_at_depth_edges`.
         coverage_px: a warped superpixel claims a novel pixel only where the source pixel under it,
             reprojected with its own depth, lands within this many px (None: off; unknown depth and
             sky always pass).
@@ -180,7 +180,7 @@ class RenderConfig:
             a strict majority excludes the others from the blend (None: off; see above).
         n_views: source views per query, 1..4 (paper: 4).
         n_segments, compactness: SLIC parameters per source view.
-        max_samples: reprojection samples per superpixel (Eq. 16; see :mod:`ibr_ros.core.warp`).
+        max_samples: reprojection samples per superpixel (Eq. 16; see :mod:`ibr_ros.core.render.warp`).
         shape_weight: weight of the shape term ``E_s`` in Eq. 18 (paper: 1).
         triangle_margin: px between a superpixel's box and its circumscribed triangle.
         near: depth-test plane of the novel camera.

@@ -46,8 +46,8 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
-from ibr_ros.core.camera import PinholeCamera
-from ibr_ros.core.superpixels import SuperpixelStats
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.render.superpixels import SuperpixelStats
 
 __all__ = [
     'WarpModel',
@@ -559,7 +559,7 @@ def prepare_warp(
 ) -> WarpModel:
     """Triangles, reprojection samples and inverted normal matrices of one source view.
 
-    ``stats`` from :func:`~ibr_ros.core.superpixels.superpixel_stats` on ``depth`` (float z-depth,
+    ``stats`` from :func:`~ibr_ros.core.render.superpixels.superpixel_stats` on ``depth`` (float z-depth,
     metres, ``+inf`` sky, ``<= 0``/NaN unknown); ``camera`` is the (undistorted) source camera.
     """
     h, w = stats.shape

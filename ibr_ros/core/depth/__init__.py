@@ -1,0 +1,133 @@
+"""Per-keyframe depth: plane-sweep MVS, pruning, monocular depth and its per-view lookup table,
+MST non-local fusion, sky masks, the refinement pipeline and the refinement scheduler.
+
+Depth maps are float32 z-depth in metres (REP-118 in messages: NaN unknown, +inf sky).
+"""
+
+from __future__ import annotations
+
+from ibr_ros.core.depth.fusion import (
+    build_mst,
+    fuse_depth,
+    mvs_support,
+    tree_filter,
+)
+from ibr_ros.core.depth.mono import (
+    PRESETS,
+    GroundPlanePrior,
+    MonoModelSpec,
+    OnnxMonoDepth,
+    nearness_to_g,
+)
+from ibr_ros.core.depth.mvs import (
+    REASON_NO_DEPTH_RANGE,
+    REASON_NO_OVERLAP,
+    REASON_NO_PARALLAX,
+    REASON_NO_SOURCES,
+    MvsBackendUnavailable,
+    MvsOptions,
+    MvsResult,
+    MvsView,
+    compute_depth_maps,
+    depth_range_from_points,
+    geometric_filter,
+    mvs_depth,
+    select_neighbours,
+)
+from ibr_ros.core.depth.onnx import (
+    IMAGENET_MEAN,
+    IMAGENET_STD,
+    MonoModelError,
+    onnx_session,
+    to_input_tensor,
+)
+from ibr_ros.core.depth.prune import (
+    median_filter_valid,
+    prune_depth,
+    weighted_median_filter_valid,
+)
+from ibr_ros.core.depth.refine import (
+    DepthRefiner,
+    RefinedDepth,
+    RefineError,
+    RefinerConfig,
+)
+from ibr_ros.core.depth.remap import (
+    build_lut,
+    level_medians,
+    linear_remap,
+    lut_remap,
+    median_factor_remap,
+)
+from ibr_ros.core.depth.schedule import (
+    RefineJob,
+    RefineScheduler,
+    ScheduleConfig,
+    axis_scene_depth,
+    parse_depth_range,
+    shard_of,
+)
+from ibr_ros.core.depth.sky import (
+    SKY_PRESETS,
+    OnnxSkySegmenter,
+    SkySpec,
+    apply_sky_depth,
+    erode_sky,
+    horizon_mask,
+    sky_fallback,
+)
+
+__all__ = [
+    'IMAGENET_MEAN',
+    'IMAGENET_STD',
+    'PRESETS',
+    'REASON_NO_DEPTH_RANGE',
+    'REASON_NO_OVERLAP',
+    'REASON_NO_PARALLAX',
+    'REASON_NO_SOURCES',
+    'SKY_PRESETS',
+    'DepthRefiner',
+    'GroundPlanePrior',
+    'MonoModelError',
+    'MonoModelSpec',
+    'MvsBackendUnavailable',
+    'MvsOptions',
+    'MvsResult',
+    'MvsView',
+    'OnnxMonoDepth',
+    'OnnxSkySegmenter',
+    'RefineError',
+    'RefineJob',
+    'RefineScheduler',
+    'RefinedDepth',
+    'RefinerConfig',
+    'ScheduleConfig',
+    'SkySpec',
+    'apply_sky_depth',
+    'axis_scene_depth',
+    'build_lut',
+    'build_mst',
+    'compute_depth_maps',
+    'depth_range_from_points',
+    'erode_sky',
+    'fuse_depth',
+    'geometric_filter',
+    'horizon_mask',
+    'level_medians',
+    'linear_remap',
+    'lut_remap',
+    'median_factor_remap',
+    'median_filter_valid',
+    'mvs_depth',
+    'mvs_support',
+    'nearness_to_g',
+    'onnx_session',
+    'parse_depth_range',
+    'prune_depth',
+    'select_neighbours',
+    'shard_of',
+    'sky_fallback',
+    'to_input_tensor',
+    'tree_filter',
+    'weighted_median_filter_valid',
+]

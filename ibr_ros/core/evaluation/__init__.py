@@ -1,0 +1,19 @@
+"""Evaluation only, not on the product path: rephotography error (shiftable L1) and the renderer
+baselines the product is measured against.
+"""
+
+from __future__ import annotations
+
+from ibr_ros.core.evaluation.rephoto import (
+    RephotoScore,
+    error_curve,
+    score,
+    shiftable_l1,
+)
+
+__all__ = [
+    'RephotoScore',
+    'error_curve',
+    'score',
+    'shiftable_l1',
+]

@@ -1,0 +1,45 @@
+"""The flight as it arrives: keyframe selection, the subsampler's latched flight status, shard
+membership of sharded refiners, and assembly of messages matched by stamp.
+"""
+
+from __future__ import annotations
+
+from ibr_ros.core.flight.keyframes import (
+    Decision,
+    IntervalSelector,
+    KeyframeConfig,
+    KeyframeSelector,
+    TargetSelection,
+    blur_score,
+    select_keyframes,
+    select_keyframes_for_target,
+)
+from ibr_ros.core.flight.stamps import (
+    StampAssembler,
+)
+from ibr_ros.core.flight.status import (
+    CAMERA_STATES,
+    IMAGE_TRANSPORTS,
+    POSE_MODES,
+    FlightStatus,
+    PoseSource,
+    ShardMembership,
+)
+
+__all__ = [
+    'CAMERA_STATES',
+    'IMAGE_TRANSPORTS',
+    'POSE_MODES',
+    'Decision',
+    'FlightStatus',
+    'IntervalSelector',
+    'KeyframeConfig',
+    'KeyframeSelector',
+    'PoseSource',
+    'ShardMembership',
+    'StampAssembler',
+    'TargetSelection',
+    'blur_score',
+    'select_keyframes',
+    'select_keyframes_for_target',
+]
