@@ -12,7 +12,7 @@ export AMENT_PREFIX_PATH := $(abspath $(VENV))$(if $(AMENT_PREFIX_PATH),:$(AMENT
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all venv install demo test lint bench lock clean
+.PHONY: all venv install demo test test-fast lint bench lock clean
 
 all: install
 
@@ -42,6 +42,10 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -q test
+
+# The unit tests alone (no DDS, no end-to-end job): a couple of minutes.
+test-fast: install
+	$(BIN)/python -m pytest -q -m 'not dds and not e2e' test
 
 lint: install
 	$(BIN)/ruff check ibr_ros msg_utils test bench launch setup.py

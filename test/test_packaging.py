@@ -16,6 +16,8 @@ from ament_index_python import packages as ament
 
 from ibr_ros.entry_points import CONSOLE_SCRIPTS
 
+pytestmark = pytest.mark.e2e
+
 
 def _prefix() -> str:
     if not os.environ.get('AMENT_PREFIX_PATH'):

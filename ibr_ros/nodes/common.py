@@ -37,6 +37,7 @@ from ibr_ros.core.flight.stamps import StampAssembler
 from ibr_ros.core.geometry.camera import CameraError
 from ibr_ros.core.geometry.transforms import GeometryError
 from ibr_ros.errors import UserError
+from ibr_ros.node_config.table import Param, ParamTable, Value
 
 __all__ = [
     'BAD_MESSAGE',
@@ -44,6 +45,7 @@ __all__ = [
     'BadInput',
     'StampAssembler',
     'declare',
+    'declare_table',
     'input_qos',
     'known_depth',
     'latched_qos',
@@ -123,6 +125,26 @@ def declare(
     elif limits is not None and isinstance(default, float):
         desc.floating_point_range = [FloatingPointRange(from_value=limits[0], to_value=limits[1], step=0.0)]
     return node.declare_parameter(name, default, desc).value
+
+
+def declare_table(node: Node, table: ParamTable[Any]) -> dict[str, Value]:
+    """Declare every parameter of ``table`` with its descriptor (range, choices, read-only unless
+    dynamic); the values given (params file, ``-p``), checked by the table (UserError naming one)."""
+    values = {p.name: _declare_param(node, p) for p in table.params}
+    return table.values(values)
+
+
+def _declare_param(node: Node, p: Param) -> object:
+    desc = ParameterDescriptor(name=p.name, description=p.description, read_only=not p.dynamic)
+    if p.choices:
+        desc.additional_constraints = 'one of: ' + ', '.join(p.choices)
+    if p.range is not None and p.kind == 'int':
+        desc.integer_range = [IntegerRange(from_value=int(p.range[0]), to_value=int(p.range[1]), step=0)]
+    elif p.range is not None and p.kind == 'double':
+        desc.floating_point_range = [
+            FloatingPointRange(from_value=float(p.range[0]), to_value=float(p.range[1]), step=0.0)
+        ]
+    return node.declare_parameter(p.name, p.default, desc).value
 
 
 class BadInput:

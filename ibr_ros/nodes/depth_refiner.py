@@ -103,7 +103,7 @@ from ibr_ros.core.registration.sfm import SfmError
 from ibr_ros.core.registration.sfm_session import SfmSession
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.warmup import warm_up_refiner
-from ibr_ros.node_config import refiner_config, sfm_settings
+from ibr_ros.node_config.depth_refiner import refiner_config, sfm_settings
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,

@@ -43,12 +43,12 @@ import msg_utils
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
 from ibr_ros.jobs.warmup import warm_up_renderer
-from ibr_ros.node_config import RENDER_PARAMETERS, render_config
+from ibr_ros.node_config import INTRINSICS, VIEW_RENDERER
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,
     StampAssembler,
-    declare,
+    declare_table,
     known_depth,
     model_qos,
     reliable_qos,
@@ -56,33 +56,18 @@ from ibr_ros.nodes.common import (
     subscribe_field,
 )
 
-INTRINSICS = ('width', 'height', 'hfov_deg')
-
 
 class ViewRenderer(Node):
     """Novel-view rendering node (see module docstring)."""
 
     def __init__(self) -> None:
         super().__init__('view_renderer')
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        dyn = {'read_only': False}
-        self.width = int(p('width', 0, 'output width (px), 0 = keyframe width', limits=(0, 16384), **dyn))
-        self.height = int(p('height', 0, 'output height (px), 0 = keyframe height', limits=(0, 16384), **dyn))
-        self.hfov = float(
-            p('hfov_deg', 0.0, 'output horizontal FOV (deg), 0 = keyframe FOV', limits=(0.0, 179.0), **dyn)
-        )
-        self.min_valid = float(
-            p('min_valid_fraction', 0.5, 'answer only when this fraction was rendered', limits=(0.0, 1.0))
-        )
-        self.frame_id = str(p('frame_id', 'novel_view_optical', 'frame_id of the replies'))
-        max_mb = float(p('max_pending_mb', 128.0, 'MiB of pending frames at most', limits=(1.0, 1e6)))
-        self.max_keyframes = int(p('max_keyframes', 1000, 'keyframes kept in the model', limits=(1, 100000)))
-        self.config = render_config(
-            {
-                name: p(name, default, text, limits=limits)
-                for name, (default, text, limits) in RENDER_PARAMETERS.items()
-            }
-        )
+        cfg = VIEW_RENDERER.build(declare_table(self, VIEW_RENDERER))
+        self.width, self.height, self.hfov = cfg.width, cfg.height, cfg.hfov_deg
+        self.min_valid = cfg.min_valid_fraction
+        self.frame_id = cfg.frame_id
+        self.max_keyframes = cfg.max_keyframes
+        self.config = cfg.render
         self.renderer = NovelViewRenderer([], self.config)
         self.bad = BadInput(self)
         self.unanswered = BadInput(self)
@@ -91,7 +76,7 @@ class ViewRenderer(Node):
             self.max_keyframes,
             lambda detail: self.bad('incomplete', detail),
             what='keyframe',
-            max_bytes=round(max_mb * 2**20),
+            max_bytes=cfg.max_pending_bytes,
         )
         self.indices: dict[int, int] = {}  # stamp -> view index in the renderer
         self.model_frame = ''
@@ -116,7 +101,7 @@ class ViewRenderer(Node):
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
         self.add_on_set_parameters_callback(self._on_params)
-        if bool(p('warmup', True, 'render a tiny scene at start-up (JIT-compiled kernels load once)')):
+        if cfg.warmup:
             self._warmup()
 
     def _on_params(self, params: list[Parameter]) -> SetParametersResult:

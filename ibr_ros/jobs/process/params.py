@@ -20,7 +20,8 @@ from ibr_ros.core.registration.sfm_session import ScaleHint
 from ibr_ros.core.render.renderer import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.node_config import refiner_config, render_config, sfm_settings
+from ibr_ros.node_config import VIEW_RENDERER
+from ibr_ros.node_config.depth_refiner import refiner_config, sfm_settings
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 T = TypeVar('T')
@@ -191,7 +192,7 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         refiner = _named(
             'depth_refiner', refiner_config, *(str(dr[k]) for k in REFINER_MODEL_PARAMETERS), mvs
         )
-        render = render_config(vr)
+        render = VIEW_RENDERER.config(vr, where='view_renderer.').render
     except (ValueError, TypeError, KeyError) as exc:
         raise UserError(f'bad node parameters: {exc}') from exc
     size = (

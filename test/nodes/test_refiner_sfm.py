@@ -29,6 +29,8 @@ from ibr_ros.core.flight.status import FlightStatus
 from ibr_ros.core.registration.sfm import umeyama
 from ibr_ros.nodes.common import latched_qos, model_qos
 
+pytestmark = pytest.mark.dds
+
 FRAMES = tuple(range(0, 192, 24))
 SIZE = (320, 180)
 

@@ -16,7 +16,7 @@ from ibr_ros.cli.main import main
 
 T = TYPESTORE.types
 SEC = 1_000_000_000
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def write_bag(path: Path) -> Path:

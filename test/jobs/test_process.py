@@ -29,6 +29,8 @@ from ibr_ros.errors import UserError
 from ibr_ros.jobs.process import OUT_TOPICS, ProcessOptions, load_params, process_bag
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 
+pytestmark = pytest.mark.e2e
+
 PARAMS = 'frame_subsampler:\n  ros__parameters:\n    scene_depth_m: 80.0\n'
 RUN = ['--max-keyframes', '4', '--views', '3', '--no-progress']
 

@@ -14,6 +14,8 @@ import pytest
 from ibr_ros.cli.main import main
 from ibr_ros.jobs.eval_depth import DepthEvalOptions, evaluate_depth
 
+pytestmark = pytest.mark.e2e
+
 
 @pytest.fixture(scope='module')
 def scenes(synth_bags, tmp_path_factory):

@@ -17,7 +17,7 @@ from ibr_ros.cli.main import main
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.images_to_bag import TOPICS, images_to_bag
 
-BRIGHTON = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'brighton_beach'
+BRIGHTON = Path(__file__).resolve().parents[3] / 'shared' / 'data' / 'brighton_beach'
 
 
 @pytest.mark.skipif(not BRIGHTON.is_dir(), reason='needs ../shared/data/brighton_beach (not in a user clone)')

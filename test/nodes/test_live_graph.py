@@ -42,6 +42,8 @@ from ibr_ros.core.flight.stamps import StampAssembler
 from ibr_ros.core.flight.status import FlightStatus, PoseSource, ShardMembership
 from ibr_ros.nodes.common import latched_qos, model_qos, reliable_qos
 
+pytestmark = [pytest.mark.dds, pytest.mark.e2e]
+
 LATCHED = model_qos()
 
 

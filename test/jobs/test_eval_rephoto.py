@@ -44,6 +44,8 @@ from ibr_ros.jobs.eval_rephoto import (
     parse_holdout,
 )
 
+pytestmark = pytest.mark.e2e
+
 BAR_METHODS = (
     *('ours@mvs', 'ours@mvs_fmm', 'ours@mono', 'ours@fused', 'ours@gt'),
     *('paper@fused', 'ulr@fused', 'ulr@gt', 'splat@fused', 'splat@gt'),

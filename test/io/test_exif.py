@@ -14,7 +14,7 @@ from PIL.TiffImagePlugin import IFDRational as Fraction
 from ibr_ros.errors import UserError
 from ibr_ros.io.exif import initial_camera, read_photo_metadata
 
-BRIGHTON = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'brighton_beach' / 'images'
+BRIGHTON = Path(__file__).resolve().parents[3] / 'shared' / 'data' / 'brighton_beach' / 'images'
 
 
 def _jpeg(path: Path, exif: Image.Exif | None = None, xmp: bytes | None = None) -> Path:

@@ -6,7 +6,10 @@ import hashlib
 import subprocess
 import sys
 
+import pytest
 from dds_peer import make_array
+
+pytestmark = pytest.mark.dds
 
 
 def test_image_crosses_processes_bit_exact(repo, ros_env):

@@ -65,6 +65,8 @@ from ibr_ros.core.geometry.transforms import matrix_from_rt
 from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
+pytestmark = pytest.mark.dds
+
 N_BAD = 1000
 FRAMES = 120  # the bag's first 12 s (10 fps)
 ODD = ('yuv422_garbage', '32FC1', '16UC1', '', 'jpeg', 'rgb16')

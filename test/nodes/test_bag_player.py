@@ -35,6 +35,8 @@ from ibr_ros.bag import BagWriter, OfferedQos, TopicInfo, open_bag
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.nodes.common import model_qos
 
+pytestmark = pytest.mark.dds
+
 SUB_QOS = QoSProfile(depth=1000, reliability=QoSReliabilityPolicy.RELIABLE)
 SMALL_START_NS = 1_700_000_000_000_000_000
 SMALL_TYPES = {

@@ -26,6 +26,8 @@ from ibr_ros.errors import UserError
 from ibr_ros.models import SHIPPED_MONO_MODEL, mono_spec, sky_spec
 from ibr_ros.nodes.common import model_qos
 
+pytestmark = pytest.mark.dds
+
 FRAMES = (48, 72, 96)  # multiples of 3: ground-truth depth is stored
 SIZE = (320, 180)
 

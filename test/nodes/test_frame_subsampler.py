@@ -24,6 +24,8 @@ import msg_utils
 from ibr_ros.bag import open_bag
 from ibr_ros.jobs.synth_bag import TOPICS
 
+pytestmark = pytest.mark.dds
+
 LATCHED = QoSProfile(
     depth=1000, reliability=QoSReliabilityPolicy.RELIABLE, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL
 )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from ibr_ros.core.geometry.transforms import look_at
 from ibr_ros.jobs.demo import interpolate_path, run_demo
@@ -26,6 +27,8 @@ def test_interpolate_path_midpoints():
     assert interpolate_path([a], 3) == []
 
 
+@pytest.mark.dds
+@pytest.mark.e2e
 def test_demo_graph_end_to_end(repo, tmp_path, ros_env, monkeypatch):
     for key in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'PYTHONPATH'):
         monkeypatch.setenv(key, ros_env[key])

@@ -47,6 +47,8 @@ from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig, Source
 from ibr_ros.graph import die_with_parent
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
+pytestmark = pytest.mark.dds
+
 KEYFRAMES = tuple(range(0, 192, 24))  # 8 frames, all multiples of 3 (stored GT depth)
 HELD_OUT = 84
 AUC_BAR = 12.0

@@ -1,0 +1,231 @@
+"""Parameter tables: one per node, the single source of its ROS parameters (no rclpy).
+
+A :class:`ParamTable` lists a node's parameters (:class:`Param`: name, type from the default, range
+or choices, description, read-only or dynamic) and the function that builds the node's core
+configuration from their values. The rclpy node declares its parameters by looping over the table
+(:func:`ibr_ros.nodes.common.declare_table`), ``ibr process`` builds the same configurations from
+``config/*.yaml`` with :meth:`ParamTable.config`, and the shipped params files and the README's node
+reference are generated from the tables (:meth:`ParamTable.params_file`, :meth:`ParamTable.reference`;
+``python -m ibr_ros.node_config --check``).
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
+
+from ibr_ros.errors import UserError
+
+__all__ = ['Param', 'ParamTable', 'Topic', 'Value']
+
+#: A parameter value: the ROS parameter types the nodes use.
+Value = bool | int | float | str | list[float] | list[str]
+C = TypeVar('C')
+
+_KINDS: dict[type, str] = {bool: 'bool', int: 'int', float: 'double', str: 'string', list: 'list'}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One ROS parameter: its type is its default's (a ``list`` default is a double or string array).
+
+    ``range`` ``(lo, hi)`` bounds a number (inclusive; rclpy checks it too), ``choices`` a string;
+    ``dynamic`` parameters may be set at run time, the others are read-only. ``comment`` adds lines
+    to the params file only (examples, how it interacts with other parameters).
+    """
+
+    name: str
+    default: Value
+    description: str
+    range: tuple[float, float] | None = None
+    choices: tuple[str, ...] = ()
+    dynamic: bool = False
+    comment: str = ''
+
+    def __post_init__(self) -> None:
+        if isinstance(self.default, bool) and self.range is not None:
+            raise ValueError(f'parameter {self.name}: a bool has no range')
+        if self.choices and not isinstance(self.default, str):
+            raise ValueError(f'parameter {self.name}: choices need a string default')
+        if self.choices and self.default not in self.choices:
+            raise ValueError(f'parameter {self.name}: default {self.default!r} is not one of its choices')
+
+    @property
+    def kind(self) -> str:
+        """'bool', 'int', 'double', 'string' or 'list'."""
+        return _KINDS[type(self.default)]
+
+    def check(self, value: object, where: str = '') -> Value:
+        """``value`` as this parameter's type (an integer is accepted for a double), checked against
+        the range or choices; a :class:`UserError` naming ``where`` + the parameter and the value."""
+        name = f'{where}{self.name}'
+        kinds = {'bool': 'true or false', 'double': 'a number', 'int': 'an integer', 'list': 'a list'}
+        bad = UserError(
+            f'parameter {name} must be {kinds.get(self.kind, "a string")} (default {self.default!r}), '
+            f'got {value!r}'
+        )
+        out: Value
+        if self.kind == 'bool':
+            if not isinstance(value, bool):
+                raise bad
+            out = value
+        elif self.kind in ('int', 'double'):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise bad
+            if self.kind == 'int' and not isinstance(value, int):
+                raise bad
+            out = float(value) if self.kind == 'double' else int(value)
+            if self.range is not None and not self.range[0] <= out <= self.range[1]:
+                lo, hi = (_num(v) for v in self.range)
+                raise UserError(f'parameter {name} must be {lo}..{hi}, got {value!r}')
+            if self.kind == 'double' and math.isnan(out):
+                raise UserError(f'parameter {name} must be a number, got nan')
+        elif self.kind == 'list':
+            if not isinstance(value, (list, tuple)):
+                raise bad
+            out = list(value)
+        else:
+            if not isinstance(value, str):
+                raise bad
+            if self.choices and value not in self.choices:
+                raise UserError(f'parameter {name} must be {_alternatives(self.choices)}, got {value!r}')
+            out = value
+        return out
+
+    def constraints(self) -> str:
+        """The range or choices as a human-readable text ('' when free)."""
+        if self.range is not None:
+            return f'{_num(self.range[0])} .. {_num(self.range[1])}'
+        if self.choices:
+            return ', '.join(self.choices)
+        return ''
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic of a node, for its reference: relative name, message type, QoS and meaning."""
+
+    name: str
+    type: str
+    description: str
+    qos: str = ''
+
+
+@dataclass(frozen=True)
+class ParamTable(Generic[C]):
+    """A node's parameters and the function that builds its core configuration from their values.
+
+    ``build`` gets every parameter (checked, defaults filled in) and returns the configuration; it
+    raises :class:`UserError` naming the parameter for combinations the table cannot express.
+    """
+
+    node: str
+    summary: str
+    params: tuple[Param, ...]
+    build: Callable[[Mapping[str, Value]], C]
+    subscribes: tuple[Topic, ...] = ()
+    publishes: tuple[Topic, ...] = ()
+    services: tuple[Topic, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        names = [p.name for p in self.params]
+        if len(set(names)) != len(names):
+            raise ValueError(f'{self.node}: parameter names repeat: {names}')
+
+    def __getitem__(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def defaults(self) -> dict[str, Value]:
+        """Every parameter's default (lists copied)."""
+        return {p.name: list(p.default) if isinstance(p.default, list) else p.default for p in self.params}
+
+    def values(self, given: Mapping[str, object] | None = None, *, where: str = '') -> dict[str, Value]:
+        """The defaults updated by ``given``, each checked; an unknown name is a :class:`UserError`."""
+        out = self.defaults()
+        for name, value in (given or {}).items():
+            try:
+                param = self[name]
+            except KeyError:
+                raise UserError(f'{where}{name!r} is not a parameter of {self.node}') from None
+            out[name] = param.check(value, where)
+        return out
+
+    def config(self, given: Mapping[str, object] | None = None, *, where: str = '') -> C:
+        """The core configuration from ``given`` values (missing ones take their defaults)."""
+        return self.build(self.values(given, where=where))
+
+    # -- generated documents ----------------------------------------------------------------------
+    def params_file(self) -> str:
+        """``config/<node>.yaml``: the defaults in ROS 2 params-file format, described in comments."""
+        lines = [
+            f'# Defaults of the {self.node} node (ROS 2 params-file format).',
+            '# Generated from ibr_ros.node_config: edit the table there, then run',
+            '# `python -m ibr_ros.node_config --write` (a test checks this file is current).',
+            '/**:',
+            '  ros__parameters:',
+        ]
+        for p in self.params:
+            lines.append(f'    # {p.description}' + (f' [{p.constraints()}]' if p.constraints() else ''))
+            lines += [f'    #   {c}' for c in textwrap.wrap(p.comment, 96)] if p.comment else []
+            lines.append(f'    {p.name}: {_yaml(p.default)}')
+        return '\n'.join(lines) + '\n'
+
+    def reference(self) -> str:
+        """The node's Markdown reference block (as image_pipeline's ``doc/components.rst``)."""
+        out = [f'### {self.node}', '', self.summary, '']
+        for title, topics in (
+            ('Subscribed topics', self.subscribes),
+            ('Published topics', self.publishes),
+            ('Services', self.services),
+        ):
+            if not topics:
+                continue
+            out += [f'**{title}**', '']
+            for t in topics:
+                qos = f' ({t.qos})' if t.qos else ''
+                out.append(f'- `{t.name}` (`{t.type}`){qos}: {t.description}')
+            out.append('')
+        out += [
+            '**Parameters**',
+            '',
+            '| name | type | default | range | description |',
+            '|---|---|---|---|---|',
+        ]
+        for p in self.params:
+            dyn = ' (dynamic)' if p.dynamic else ''
+            desc = p.description.replace('|', '\\|')
+            out.append(f'| `{p.name}` | {p.kind}{dyn} | `{_yaml(p.default)}` | {p.constraints()} | {desc} |')
+        return '\n'.join(out) + '\n'
+
+
+def _num(v: float) -> str:
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else repr(float(v))
+
+
+def _alternatives(choices: Sequence[str]) -> str:
+    quoted = [repr(c) for c in choices]
+    return quoted[0] if len(quoted) == 1 else ', '.join(quoted[:-1]) + ' or ' + quoted[-1]
+
+
+def _yaml(v: object) -> str:
+    if isinstance(v, bool):
+        return 'true' if v else 'false'
+    if isinstance(v, str):
+        return (
+            "''"
+            if v == ''
+            else (repr(v) if v in ('off', 'on', 'yes', 'no', 'none', 'true', 'false') or ':' in v else v)
+        )
+    if isinstance(v, list):
+        return '[' + ', '.join(_yaml(x) for x in v) + ']'
+    return repr(v)

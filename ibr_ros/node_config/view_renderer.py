@@ -1,0 +1,217 @@
+"""The view_renderer's parameter table and the configuration built from it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from ibr_ros.core.render.renderer import RenderConfig
+from ibr_ros.errors import UserError
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+
+__all__ = ['INTRINSICS', 'VIEW_RENDERER', 'ViewRendererConfig', 'render_config']
+
+#: The output-intrinsics parameters, settable at run time.
+INTRINSICS = ('width', 'height', 'hfov_deg')
+
+#: Parameters that configure the renderer itself (:class:`RenderConfig` fields, same names).
+_RENDER = (
+    Param(
+        'renderer',
+        'ibr',
+        "'ibr' (superpixel warp) or the baselines 'splat' and 'ulr'",
+        choices=('ibr', 'splat', 'ulr'),
+    ),
+    Param(
+        'blend',
+        'ulr',
+        "'ulr' (weights 1 - p / p_max), 'paper' (smallest angle penalty wins) or 'soft'",
+        choices=('paper', 'soft', 'ulr'),
+    ),
+    Param('n_views', 4, 'source views per query', (1, 4)),
+    Param('n_segments', 1500, 'SLIC superpixels per source view', (16, 100000)),
+    Param(
+        'depth_split',
+        0.02,
+        'split superpixels at depth steps above this (log depth, 0.02 = 2 %), 0 = off',
+        (0.0, 10.0),
+        comment='Additions to the paper renderer (0 = off). The paper exactly: blend paper, depth_split, '
+        'coverage_px, depth_tolerance, resolution_weight_deg and depth_lookup_steps 0, min_depth_samples 10.',
+    ),
+    Param(
+        'coverage_px',
+        1.0,
+        'a warped superpixel claims a pixel only if its source pixel reprojects this close (px), 0 = off',
+        (0.0, 1e3),
+    ),
+    Param(
+        'depth_tolerance',
+        0.5,
+        "views vote on each pixel's depth (agree = within a factor 1 + this); the majority blends; 0 = off",
+        (0.0, 1e3),
+    ),
+    Param(
+        'resolution_weight_deg',
+        40.0,
+        'angle penalty (deg) added per unit of the ULR resolution term',
+        (0.0, 1e3),
+    ),
+    Param(
+        'depth_lookup_steps',
+        2,
+        'Newton steps moving each colour lookup to where the source depth puts the pixel, 0 = off',
+        (0, 10),
+    ),
+    Param('depth_lookup_max_px', 1.0, 'largest depth correction of the colour lookup (px)', (0.01, 1e3)),
+    Param(
+        'depth_lookup_min_fit_px',
+        0.08,
+        'correct only superpixels whose affine warp misses its samples by more (RMS px)',
+        (0.0, 1e3),
+    ),
+    Param(
+        'min_depth_samples',
+        2,
+        'known-depth pixels a superpixel needs to be warped (the paper: 10)',
+        (1, 100000),
+    ),
+    Param(
+        'max_axis_angle_deg',
+        90.0,
+        'source views facing farther away than this are ignored (deg)',
+        (1.0, 180.0),
+    ),
+    Param(
+        'far_factor',
+        3.0,
+        'queries farther than this x the median scene depth from every view are refused',
+        (0.01, 1e6),
+    ),
+    Param('max_cached_views', 64, 'per-view superpixel/warp caches kept (LRU)', (1, 100000)),
+)
+
+#: RenderConfig fields that are None (off) at 0.
+_OFF_AT_ZERO = ('depth_split', 'coverage_px', 'depth_tolerance')
+
+
+@dataclass(frozen=True)
+class ViewRendererConfig:
+    """What the view_renderer node (and ``ibr process``'s novel views) run with.
+
+    ``width`` / ``height`` (px) / ``hfov_deg``: 0 takes the latest keyframe's. ``max_pending_bytes``
+    bounds keyframes waiting for their other messages.
+    """
+
+    render: RenderConfig
+    width: int
+    height: int
+    hfov_deg: float
+    min_valid_fraction: float
+    frame_id: str
+    max_keyframes: int
+    max_pending_bytes: int
+    warmup: bool
+
+
+def render_config(values: Mapping[str, object]) -> RenderConfig:
+    """The renderer parameters among ``values`` (missing ones take their defaults) as a
+    :class:`RenderConfig`; a bad value is a :class:`UserError` naming the parameter."""
+    checked = VIEW_RENDERER.values({p.name: values[p.name] for p in _RENDER if p.name in values})
+    fields: dict[str, object] = {p.name: checked[p.name] for p in _RENDER}
+    for name in _OFF_AT_ZERO:
+        fields[name] = fields[name] or None
+    try:
+        return RenderConfig(**fields)  # type: ignore[arg-type]  # names and types are RenderConfig's
+    except ValueError as exc:
+        raise UserError(f'bad view_renderer parameter: {exc}') from exc
+
+
+def _build(v: Mapping[str, Value]) -> ViewRendererConfig:
+    return ViewRendererConfig(
+        render=render_config(v),
+        width=int(v['width']),  # type: ignore[arg-type]
+        height=int(v['height']),  # type: ignore[arg-type]
+        hfov_deg=float(v['hfov_deg']),  # type: ignore[arg-type]
+        min_valid_fraction=float(v['min_valid_fraction']),  # type: ignore[arg-type]
+        frame_id=str(v['frame_id']),
+        max_keyframes=int(v['max_keyframes']),  # type: ignore[arg-type]
+        max_pending_bytes=round(float(v['max_pending_mb']) * 2**20),  # type: ignore[arg-type]
+        warmup=bool(v['warmup']),
+    )
+
+
+VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
+    node='view_renderer',
+    summary=(
+        'Answers novel-view queries from the keyframe model: the superpixel shape-preserving warp of the '
+        '4 nearest keyframes, a depth test and blending. A query is answered only when at least '
+        '`min_valid_fraction` of the pixels was rendered; queries waiting while one renders are '
+        'superseded by the newest (counted).'
+    ),
+    params=(
+        Param('width', 0, "output width (px); 0 = the latest keyframe's", (0, 16384), dynamic=True),
+        Param('height', 0, "output height (px); 0 = the latest keyframe's", (0, 16384), dynamic=True),
+        Param(
+            'hfov_deg',
+            0.0,
+            "output horizontal field of view (deg); 0 = the latest keyframe's",
+            (0.0, 179.0),
+            dynamic=True,
+        ),
+        Param(
+            'min_valid_fraction',
+            0.5,
+            'reply only when at least this fraction of the pixels was rendered',
+            (0.0, 1.0),
+        ),
+        Param('frame_id', 'novel_view_optical', 'header.frame_id of the replies'),
+        *_RENDER,
+        Param('max_keyframes', 1000, 'keyframes kept in the model', (1, 100000)),
+        Param(
+            'max_pending_mb',
+            128.0,
+            'pending frames (waiting for their other messages) hold at most this many MiB',
+            (1.0, 1e6),
+        ),
+        Param('warmup', True, 'render a tiny scene at start-up so that the first query is fast'),
+    ),
+    build=_build,
+    subscribes=(
+        Topic('keyframes/image', 'sensor_msgs/Image', 'keyframe images', 'reliable, transient local'),
+        Topic(
+            'keyframes/camera_info', 'sensor_msgs/CameraInfo', 'their intrinsics', 'reliable, transient local'
+        ),
+        Topic(
+            'keyframes/pose',
+            'geometry_msgs/PoseStamped',
+            'camera-to-world pose of the optical frame',
+            'reliable, transient local',
+        ),
+        Topic(
+            'keyframes/depth',
+            'sensor_msgs/Image',
+            'refined depth, 32FC1 metres (REP-118) or 16UC1 mm',
+            'reliable, transient local',
+        ),
+        Topic(
+            'novel_view/query',
+            'geometry_msgs/PoseStamped',
+            'desired camera-to-world optical-frame pose (frame `map` or the model frame)',
+            'reliable',
+        ),
+    ),
+    publishes=(
+        Topic(
+            'novel_view/image',
+            'sensor_msgs/Image',
+            "rgb8 view, black where nothing was rendered; the query's stamp",
+            'reliable',
+        ),
+        Topic(
+            'novel_view/camera_info',
+            'sensor_msgs/CameraInfo',
+            "the view's intrinsics; the query's stamp",
+            'reliable',
+        ),
+    ),
+)
