@@ -13,7 +13,9 @@ from ibr_ros.node_config.__main__ import expected
 
 
 def test_shipped_params_files_and_readme_reference_are_generated_from_the_tables(repo) -> None:
-    for path, text in expected(repo / 'config', repo / 'README.md').items():
+    files = expected(repo)
+    assert repo / 'README.md' in files, 'README.md lacks the generated node list markers'
+    for path, text in files.items():
         assert path.read_text(encoding='utf-8') == text, f'{path}: run python -m ibr_ros.node_config --write'
     assert sorted(p.stem for p in (repo / 'config').glob('*.yaml')) == sorted(TABLES)
 
