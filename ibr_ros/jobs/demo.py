@@ -24,38 +24,15 @@ import numpy as np
 
 import msg_utils
 from ibr_ros.core.evaluation.rephoto import score
-from ibr_ros.core.geometry.transforms import (
-    matrix_from_rt,
-    quaternion_from_rotation,
-    rotation_from_quaternion,
-)
+from ibr_ros.core.geometry.path import interpolate_path
 from ibr_ros.errors import UserError
 from ibr_ros.graph import Graph, NodeSpec
 from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 
-__all__ = ['interpolate_path', 'path_pairs', 'run_demo']
+__all__ = ['run_demo']
 
 LOG = logging.getLogger(__name__)
-
-
-def path_pairs(n_keyframes: int, n: int) -> list[int]:
-    """Indices ``i`` of up to ``n`` keyframe pairs ``(i, i + 1)``, spread evenly along the flight."""
-    if n_keyframes < 2:
-        return []
-    return np.unique(np.linspace(0, n_keyframes - 2, min(n, n_keyframes - 1)).round().astype(int)).tolist()
-
-
-def interpolate_path(poses: list[np.ndarray], n: int) -> list[np.ndarray]:
-    """``n`` poses at the midpoints between consecutive keyframe poses (normalised quaternion lerp),
-    of the pairs :func:`path_pairs` picks."""
-    mids = []
-    for i in path_pairs(len(poses), n):
-        a, b = poses[i], poses[i + 1]
-        qa, qb = quaternion_from_rotation(a[:3, :3]), quaternion_from_rotation(b[:3, :3])
-        qb = qb if qa @ qb >= 0 else -qb
-        mids.append(matrix_from_rt(rotation_from_quaternion(qa + qb), (a[:3, 3] + b[:3, 3]) / 2))
-    return mids
 
 
 def _png(path: Path, rgb: np.ndarray) -> None:

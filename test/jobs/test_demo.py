@@ -11,20 +11,9 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 
-from ibr_ros.core.geometry.transforms import look_at
-from ibr_ros.jobs.demo import interpolate_path, run_demo
-
-
-def test_interpolate_path_midpoints():
-    a = look_at([0, 0, 50], [10, 0, 0])
-    b = look_at([10, 0, 50], [20, 0, 0])
-    (mid,) = interpolate_path([a, b], 5)
-    assert np.allclose(mid[:3, 3], [5, 0, 50])
-    assert np.allclose(mid[:3, :3] @ mid[:3, :3].T, np.eye(3))
-    assert interpolate_path([a], 3) == []
+from ibr_ros.jobs.demo import run_demo
 
 
 @pytest.mark.dds

@@ -1,6 +1,6 @@
 """Cameras and geometry: pinhole cameras (REP-103 optical frame: z forward, x right, y down),
-rigid transforms (4x4 camera-to-world matrices, metres), geodesy (WGS-84 -> local ENU), undistortion
-and plane fitting.
+rigid transforms (4x4 camera-to-world matrices, metres), geodesy (WGS-84 -> local ENU), undistortion,
+plane fitting and query paths between keyframes.
 """
 
 from __future__ import annotations
@@ -20,6 +20,11 @@ from ibr_ros.core.geometry.geodesy import (
     enu_to_geodetic,
     geodetic_to_ecef,
     geodetic_to_enu,
+)
+from ibr_ros.core.geometry.path import (
+    interpolate_path,
+    path_pairs,
+    path_stamps,
 )
 from ibr_ros.core.geometry.plane import (
     fit_ground_plane,
@@ -55,8 +60,11 @@ __all__ = [
     'fit_ground_plane',
     'geodetic_to_ecef',
     'geodetic_to_enu',
+    'interpolate_path',
     'look_at',
     'matrix_from_rt',
+    'path_pairs',
+    'path_stamps',
     'quaternion_from_rotation',
     'rotation_angle_deg',
     'rotation_from_quaternion',

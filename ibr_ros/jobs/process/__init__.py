@@ -19,7 +19,7 @@ The same core code as the nodes, run synchronously in bag-time order (determinis
    :func:`~ibr_ros.core.depth.mvs.compute_depth_maps` and
    :meth:`~ibr_ros.core.depth.refine.DepthRefiner.refine_from_mvs`;
 3. render: :class:`~ibr_ros.core.render.renderer.NovelViewRenderer` (the view_renderer's parameters) at
-   ``views`` poses along the keyframe path (:func:`ibr_ros.jobs.demo.interpolate_path`).
+   ``views`` poses along the keyframe path (:func:`ibr_ros.core.geometry.path.interpolate_path`).
 
 SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a bag without a pose
 topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm`` (its poses

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.path import interpolate_path, path_stamps
 from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
-from ibr_ros.jobs.demo import interpolate_path, path_pairs
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import _Configs
@@ -26,11 +26,6 @@ class NovelView:
     valid: np.ndarray | None = None
     reason: str | None = None
     render_s: float = 0.0
-
-
-def _path_stamps(stamps: list[int], n: int) -> list[int]:
-    """Stamps of :func:`interpolate_path`'s poses: the midpoints of the same keyframe pairs."""
-    return [(stamps[i] + stamps[i + 1]) // 2 for i in path_pairs(len(stamps), n)]
 
 
 def _render_all(
@@ -64,7 +59,7 @@ def _render_all(
         else PinholeCamera.from_fov(w or last.width, h or last.height, hfov or last.hfov_deg)
     )
     poses = interpolate_path([k.t_wc for k in model], n_views)
-    stamps = _path_stamps([k.stamp for k in model], n_views)
+    stamps = path_stamps([k.stamp for k in model], n_views)
     views = [NovelView(s, t) for s, t in zip(stamps, poses, strict=True)]
     for j, v in enumerate(views):
         t1 = time.perf_counter()
