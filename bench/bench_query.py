@@ -43,7 +43,7 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 import msg_utils  # noqa: E402
 from ibr_ros.core.geometry.transforms import matrix_from_rt  # noqa: E402
-from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig  # noqa: E402
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig  # noqa: E402
 from ibr_ros.graph import Graph, NodeSpec  # noqa: E402
 from ibr_ros.nodes.common import model_qos, reliable_qos  # noqa: E402
 

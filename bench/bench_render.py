@@ -33,7 +33,7 @@ from timing import median_ms  # noqa: E402
 from ibr_ros.core.evaluation.rephoto import score  # noqa: E402
 from ibr_ros.core.geometry.camera import PinholeCamera  # noqa: E402
 from ibr_ros.core.geometry.transforms import matrix_from_rt  # noqa: E402
-from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
 from ibr_ros.core.synth import (  # noqa: E402
     SceneConfig,
     build_scene,

@@ -56,7 +56,7 @@ from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.depth.sky import apply_sky_depth
 from ibr_ros.core.evaluation.rephoto import shiftable_l1
-from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig, SourceView
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import load_views, sparse_points, write_atomic
 from ibr_ros.jobs.synth_bag import GroundTruthRenderer

@@ -23,7 +23,7 @@ from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import look_at
-from ibr_ros.core.render.renderer import NovelViewRenderer, RenderConfig, SourceView
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 
 __all__ = ['main', 'plane_views', 'warm_up_refiner', 'warm_up_renderer']
 

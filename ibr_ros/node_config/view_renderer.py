@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from ibr_ros.core.render.renderer import RenderConfig
+from ibr_ros.core.render import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
 

@@ -41,7 +41,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.geometry.camera import PinholeCamera
-from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
+from ibr_ros.core.render import NovelViewRenderer, SourceView
 from ibr_ros.jobs.warmup import warm_up_renderer
 from ibr_ros.node_config import INTRINSICS, VIEW_RENDERER
 from ibr_ros.nodes.common import (

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from ibr_ros.core.render.renderer import RenderConfig
+from ibr_ros.core.render import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.node_config import TABLES, VIEW_RENDERER, Param, render_config
 from ibr_ros.node_config.__main__ import expected

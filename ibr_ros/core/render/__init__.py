@@ -1,13 +1,32 @@
-"""Novel views: SLIC superpixels, the shape-preserving warp, and the renderer (4 nearest views,
-depth test, blending).
+"""Novel views: SLIC superpixels, the shape-preserving warp, the raster and blend kernels and the
+renderer (the 4 nearest views, a depth test, blending); settings in :class:`RenderConfig`.
 """
 
 from __future__ import annotations
 
-from ibr_ros.core.render.renderer import (
+from ibr_ros.core.render.blend import (
+    bilinear,
+    blend_views,
+    put_rgb,
+)
+from ibr_ros.core.render.config import (
     PAPER_FIELDS,
-    NovelViewRenderer,
     RenderConfig,
+)
+from ibr_ros.core.render.projection import (
+    intrinsics_vector,
+    lands_near,
+    refine_preimage,
+    relative_pose,
+    reprojection_params,
+)
+from ibr_ros.core.render.raster import (
+    affine_maps,
+    raster_views,
+    row_spans,
+)
+from ibr_ros.core.render.renderer import (
+    NovelViewRenderer,
     Rendered,
     SourceView,
 )
@@ -38,9 +57,20 @@ __all__ = [
     'SuperpixelStats',
     'WarpModel',
     'WarpResult',
+    'affine_maps',
     'barycentric',
+    'bilinear',
+    'blend_views',
     'circumscribed_triangles',
+    'intrinsics_vector',
+    'lands_near',
     'prepare_warp',
+    'put_rgb',
+    'raster_views',
+    'refine_preimage',
+    'relative_pose',
+    'reprojection_params',
+    'row_spans',
     'shape_coefficients',
     'shape_energy',
     'slic',

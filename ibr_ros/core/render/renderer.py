@@ -106,23 +106,25 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
-from typing import Literal
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import GeometryError, validate_pose
+from ibr_ros.core.render.baselines import _fill_cracks, _splat, _ulr_blend, _ulr_view
+from ibr_ros.core.render.blend import blend_views
+from ibr_ros.core.render.config import RenderConfig
+from ibr_ros.core.render.projection import intrinsics_vector, relative_pose, reprojection_params
+from ibr_ros.core.render.raster import affine_maps, raster_views, row_spans
 from ibr_ros.core.render.superpixels import slic, split_at_depth_edges, superpixel_stats
-from ibr_ros.core.render.warp import WarpModel, prepare_warp, project_pixel, warp_superpixels
+from ibr_ros.core.render.warp import WarpModel, prepare_warp, warp_superpixels
 
-__all__ = ['PAPER_FIELDS', 'NovelViewRenderer', 'RenderConfig', 'Rendered', 'SourceView']
+__all__ = ['NovelViewRenderer', 'Rendered', 'SourceView']
 
 _DUMMY_RGB = np.zeros((1, 1, 3), np.uint8)
-_SOFT_CUTOFF = 3.0  # blend='soft' leaves out views whose weight exp(-d^2) is below exp(-9) = 1.2e-4
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,144 +141,6 @@ class SourceView:
     t_wc: NDArray[np.float64]
     name: str = ''
     stamp: float = 0.0
-
-
-#: The fields that make :class:`RenderConfig` the renderer exactly as in the paper (see ``as_paper``).
-PAPER_FIELDS: dict[str, object] = {
-    'blend': 'paper',
-    'depth_split': None,
-    'coverage_px': None,
-    'depth_tolerance': None,
-    'resolution_weight_deg': 0.0,
-    'depth_lookup_steps': 0,
-    'min_depth_samples': 10,
-}
-
-
-@dataclass(frozen=True)
-class RenderConfig:
-    """Renderer settings (angles in degrees, distances in metres; see the module docstring).
-
-    The defaults are this project's renderer: the paper's pipeline plus five additions that lower
-    the worst-1 % rephotography error (``depth_split``, ``coverage_px``, ``depth_tolerance``,
-    ``blend='ulr'`` with the resolution term and ``depth_lookup_steps``; measurements and
-    exceptions in the module docstring).
-    :meth:`as_paper` / :meth:`paper` switch them off: the paper exactly.
-
-    Attributes:
-        renderer: ``'ibr'`` (the paper's superpixel warp), ``'splat'`` or ``'ulr'`` (baselines for
-            evaluation).
-        blend: ``'paper'`` (smallest penalty wins), ``'soft'`` (Gaussian falloff of the penalty) or
-            ``'ulr'`` (weights ``1 - p / p_max`` over the views covering the pixel, as ULR).
-        resolution_weight_deg: degrees added to a view's angle penalty per unit of ULR's resolution
-            term ``max(0, (|a - C_s| - |a - C_n|) / |a - C_s|)`` (0: the paper's angle only).
-        depth_split, depth_split_levels, depth_split_min_px: split superpixels at depth steps larger
-            than ``depth_split`` (log depth; None: off) before warping, see
-            :func:`~ibr_ros.core.render.superpixels.split_at_depth_edges`.
-        coverage_px: a warped superpixel claims a novel pixel only where the source pixel under it,
-            reprojected with its own depth, lands within this many px (None: off; unknown depth and
-            sky always pass).
-        depth_tolerance: the views covering a pixel vote on its depth with this relative tolerance;
-            a strict majority excludes the others from the blend (None: off; see above).
-        n_views: source views per query, 1..4 (paper: 4).
-        n_segments, compactness: SLIC parameters per source view.
-        max_samples: reprojection samples per superpixel (Eq. 16; see :mod:`ibr_ros.core.render.warp`).
-        shape_weight: weight of the shape term ``E_s`` in Eq. 18 (paper: 1).
-        triangle_margin: px between a superpixel's box and its circumscribed triangle.
-        near: depth-test plane of the novel camera.
-        max_axis_angle_deg: views whose optical axis is farther from the novel one are ignored.
-        far_factor, max_distance_m: distance limit (see the module docstring).
-        max_magnification: linear magnification above which a warped superpixel is dropped.
-        soft_sigma_deg: falloff of ``blend='soft'``.
-        ulr_blend_min_weight: ``blend='ulr'`` leaves out views whose weight is below this fraction
-            of the best view's (0: all; 0.3 saves a third of the colour lookups, about 4 ms at
-            960x540, for a worst-1 % error higher by 0.2-0.7 %).
-        depth_lookup_steps, depth_lookup_max_px, depth_lookup_min_fit_px: per-pixel correction of
-            the colour lookup with the source depth: Newton steps (0: off), at most this many px,
-            only in superpixels whose affine warp misses its samples by more than this (RMS px;
-            0: all).
-        max_cached_views: LRU size of the per-view cache.
-        min_depth_samples, min_depth_fraction: ``has_depth`` rule of ``superpixel_stats``.
-        splat_views: views splatted by ``renderer='splat'``.
-        ulr_occlusion_eps, ulr_resolution_weight: ``renderer='ulr'`` occlusion test and penalty.
-    """
-
-    renderer: Literal['ibr', 'splat', 'ulr'] = 'ibr'
-    blend: Literal['paper', 'soft', 'ulr'] = 'ulr'
-    resolution_weight_deg: float = 40.0
-    depth_split: float | None = 0.02
-    depth_split_levels: int = 2
-    depth_split_min_px: int = 2
-    coverage_px: float | None = 1.0
-    depth_tolerance: float | None = 0.5
-    n_views: int = 4
-    n_segments: int = 1500
-    compactness: float = 10.0
-    max_samples: int = 64
-    shape_weight: float = 1.0
-    triangle_margin: float = 1.0
-    near: float = 0.05
-    max_axis_angle_deg: float = 90.0
-    far_factor: float = 3.0
-    max_distance_m: float | None = None
-    max_magnification: float = 8.0
-    soft_sigma_deg: float = 2.0
-    ulr_blend_min_weight: float = 0.3
-    depth_lookup_steps: int = 2
-    depth_lookup_max_px: float = 1.0
-    depth_lookup_min_fit_px: float = 0.08
-    max_cached_views: int = 64
-    min_depth_samples: int = 2
-    min_depth_fraction: float = 0.05
-    splat_views: int = 1
-    ulr_occlusion_eps: float = 0.05
-    ulr_resolution_weight: float = 0.1
-
-    def __post_init__(self) -> None:
-        if self.renderer not in ('ibr', 'splat', 'ulr'):
-            raise ValueError(f"renderer must be 'ibr', 'splat' or 'ulr', got {self.renderer!r}")
-        if self.blend not in ('paper', 'soft', 'ulr'):
-            raise ValueError(f"blend must be 'paper', 'soft' or 'ulr', got {self.blend!r}")
-        if not 1 <= self.n_views <= 4:
-            raise ValueError(f'n_views must be 1..4, got {self.n_views}')
-        positive = ('n_segments', 'max_cached_views', 'splat_views', 'near', 'far_factor', 'soft_sigma_deg')
-        for name in positive:
-            if not getattr(self, name) > 0:
-                raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
-        if not 0 <= self.ulr_blend_min_weight < 1:
-            raise ValueError(f'ulr_blend_min_weight must be in [0, 1), got {self.ulr_blend_min_weight}')
-        if not 0 < self.max_axis_angle_deg <= 180 or not self.max_magnification >= 1:
-            raise ValueError('need 0 < max_axis_angle_deg <= 180 and max_magnification >= 1')
-        if (
-            self.depth_lookup_steps < 0
-            or not self.depth_lookup_max_px > 0
-            or not self.depth_lookup_min_fit_px >= 0
-        ):
-            raise ValueError(
-                'need depth_lookup_steps >= 0, depth_lookup_max_px > 0 and depth_lookup_min_fit_px >= 0, got '
-                f'{self.depth_lookup_steps}, {self.depth_lookup_max_px}, {self.depth_lookup_min_fit_px}'
-            )
-        for name in ('depth_tolerance', 'coverage_px', 'depth_split'):
-            value = getattr(self, name)
-            if value is not None and not value > 0:
-                raise ValueError(f'{name} must be None (off) or > 0, got {value}')
-        if not 0 <= self.depth_split_levels <= 8 or self.depth_split_min_px < 0:
-            raise ValueError(
-                f'need depth_split_levels 0..8 and depth_split_min_px >= 0, got {self.depth_split_levels}, '
-                f'{self.depth_split_min_px}'
-            )
-        if not self.resolution_weight_deg >= 0:
-            raise ValueError(f'resolution_weight_deg must be >= 0, got {self.resolution_weight_deg}')
-
-    def as_paper(self) -> RenderConfig:
-        """This configuration with the paper's renderer: :data:`PAPER_FIELDS` (best-angle blend,
-        SLIC superpixels as they come, angle-only penalty, no per-pixel or cross-view depth tests)."""
-        return replace(self, **PAPER_FIELDS)  # type: ignore[arg-type]
-
-    @classmethod
-    def paper(cls, **changes: object) -> RenderConfig:
-        """The paper's renderer with the other defaults (``changes`` override any field)."""
-        return replace(cls().as_paper(), **changes)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True, eq=False)
@@ -327,620 +191,6 @@ class _ViewCache:
     def nbytes(self) -> int:
         arrays = (self.labels, self.bbox, self.span_off, self.spans)
         return sum(a.nbytes for a in arrays) + self.model.nbytes
-
-
-# ------------------------------------------------------------------------------ numba kernels
-
-
-@njit(cache=True)
-def _row_spans(labels, bbox, span_off, spans):
-    """Column extent of every superpixel in every row of its box (empty rows: ``x_min > x_max``)."""
-    spans[:, 0] = 32767
-    spans[:, 1] = -1
-    h, w = labels.shape
-    for y in range(h):
-        for x in range(w):
-            k = labels[y, x]
-            r = span_off[k] + y - bbox[k, 1]
-            if x < spans[r, 0]:
-                spans[r, 0] = x
-            spans[r, 1] = x  # raster order: the last one is the largest
-
-
-@njit(cache=True)
-def _affine_maps(src, dst, ok, bbox, max_area, w, h, inv, box):
-    """Inverse affine maps (novel -> source) of the warped triangles and their destination boxes.
-
-    Clears ``ok`` for flipped, degenerate, over-magnified or off-screen warps.
-    """
-    for k in range(src.shape[0]):
-        if not ok[k]:
-            continue
-        s1x, s1y = src[k, 0, 0], src[k, 0, 1]
-        s2x, s2y = src[k, 1, 0], src[k, 1, 1]
-        s3x, s3y = src[k, 2, 0], src[k, 2, 1]
-        d1x, d1y = dst[k, 0, 0], dst[k, 0, 1]
-        d2x, d2y = dst[k, 1, 0], dst[k, 1, 1]
-        d3x, d3y = dst[k, 2, 0], dst[k, 2, 1]
-        ds = (s2x - s1x) * (s3y - s1y) - (s3x - s1x) * (s2y - s1y)
-        dd = (d2x - d1x) * (d3y - d1y) - (d3x - d1x) * (d2y - d1y)
-        ratio = dd / ds
-        if not (ratio > 1e-6 and ratio < max_area):
-            ok[k] = False
-            continue
-        # linear parts: source = B (d - d1) + s1, destination = A (s - s1) + d1
-        ia = (d3y - d1y) / dd
-        ib = -(d3x - d1x) / dd
-        ic = -(d2y - d1y) / dd
-        id_ = (d2x - d1x) / dd
-        b00 = (s2x - s1x) * ia + (s3x - s1x) * ic
-        b01 = (s2x - s1x) * ib + (s3x - s1x) * id_
-        b10 = (s2y - s1y) * ia + (s3y - s1y) * ic
-        b11 = (s2y - s1y) * ib + (s3y - s1y) * id_
-        inv[k, 0, 0] = b00
-        inv[k, 0, 1] = b01
-        inv[k, 0, 2] = s1x - b00 * d1x - b01 * d1y
-        inv[k, 1, 0] = b10
-        inv[k, 1, 1] = b11
-        inv[k, 1, 2] = s1y - b10 * d1x - b11 * d1y
-        det = b00 * b11 - b01 * b10
-        a00 = b11 / det
-        a01 = -b01 / det
-        a10 = -b10 / det
-        a11 = b00 / det
-        xmin = np.inf
-        xmax = -np.inf
-        ymin = np.inf
-        ymax = -np.inf
-        for cx in range(2):
-            for cy in range(2):
-                sx = (bbox[k, 0] - 0.5 if cx == 0 else bbox[k, 2] + 0.5) - s1x
-                sy = (bbox[k, 1] - 0.5 if cy == 0 else bbox[k, 3] + 0.5) - s1y
-                x = a00 * sx + a01 * sy + d1x
-                y = a10 * sx + a11 * sy + d1y
-                xmin = min(xmin, x)
-                xmax = max(xmax, x)
-                ymin = min(ymin, y)
-                ymax = max(ymax, y)
-        if not (xmax >= 0.0 and ymax >= 0.0 and xmin <= w - 1.0 and ymin <= h - 1.0):  # also NaN
-            ok[k] = False
-            continue
-        x0 = math.ceil(max(xmin, 0.0))
-        x1 = math.floor(min(xmax, w - 1.0))
-        y0 = math.ceil(max(ymin, 0.0))
-        y1 = math.floor(min(ymax, h - 1.0))
-        if x0 > x1 or y0 > y1:
-            ok[k] = False
-            continue
-        box[k, 0] = x0
-        box[k, 1] = y0
-        box[k, 2] = x1
-        box[k, 3] = y1
-
-
-@njit(cache=True)
-def _span(ib, c, lo, hi, xs, xe):
-    """Sub-interval of ``[xs, xe]`` where ``lo <= b * x + c <= hi``, ``ib = 1 / b`` (0: ``b == 0``).
-
-    Empty when the result has ``xs > xe``.
-    """
-    if ib == 0.0:
-        return (xs, xe) if lo <= c <= hi else (1.0, 0.0)
-    a1 = (lo - c) * ib
-    a2 = (hi - c) * ib
-    if a1 > a2:
-        a1, a2 = a2, a1
-    return max(xs, a1), min(xe, a2)
-
-
-@njit(cache=True)
-def _pick(a, b, c, d, j):
-    """The ``j``-th of four same-typed arrays (numba cannot index a list of arrays cheaply)."""
-    if j == 0:
-        return a
-    if j == 1:
-        return b
-    return c if j == 2 else d
-
-
-@njit(cache=True)
-def _lands_near(d, hx, hy, hz, rel, x, y, thr2):
-    """Whether a source pixel at depth ``d`` projects within ``sqrt(thr2)`` px of novel pixel
-    ``(x, y)``; ``(hx, hy, hz) = H (u, v, 1)`` of the source pixel, ``rel`` as in
-    :func:`_refine_preimage`. True for unknown depth or sky (only the affine map is known there)."""
-    d = np.float64(d)
-    if not (d > 0 and d < np.inf):
-        return True
-    zc = hz * d + rel[11]
-    ex = hx * d + rel[9] - x * zc
-    ey = hy * d + rel[10] - y * zc
-    return zc > 1e-6 and ex * ex + ey * ey <= thr2 * zc * zc
-
-
-@njit(cache=True)
-def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, depth, rel, thr2):
-    """Rows ``r0..r1`` of :func:`_raster` for one view."""
-    for oi in range(order.size):
-        k = order[oi]
-        ya = max(box[k, 1], r0)
-        yb = min(box[k, 3], r1)
-        if ya > yb:
-            continue
-        b00, b01, b02 = inv[k, 0, 0], inv[k, 0, 1], inv[k, 0, 2]
-        b10, b11, b12 = inv[k, 1, 0], inv[k, 1, 1], inv[k, 1, 2]
-        bx0, by0, bx1, by1 = bbox[k, 0], bbox[k, 1], bbox[k, 2], bbox[k, 3]
-        kk = labels.dtype.type(k)
-        ib0 = 1.0 / b00 if abs(b00) > 1e-12 else 0.0
-        ib1 = 1.0 / b10 if abs(b10) > 1e-12 else 0.0
-        for y in range(ya, yb + 1):
-            cu = b01 * y + b02
-            cv = b11 * y + b12
-            xs, xe = _span(ib0, cu, bx0 - 0.5, bx1 + 0.5, np.float64(box[k, 0]), np.float64(box[k, 2]))
-            xs, xe = _span(ib1, cv, by0 - 0.5, by1 + 0.5, xs, xe)
-            if xs > xe:
-                continue
-            # clip by the column extent of the superpixel in the source rows the segment crosses
-            va = b10 * xs + cv
-            vb = b10 * xe + cv
-            ra = min(max(int(min(va, vb) + 0.5), by0), by1)
-            rb = min(max(int(max(va, vb) + 0.5), by0), by1)
-            sx0 = 32767
-            sx1 = -1
-            for sr in range(span_off[k] + ra - by0, span_off[k] + rb - by0 + 1):
-                sx0 = min(sx0, spans[sr, 0])
-                sx1 = max(sx1, spans[sr, 1])
-            xs, xe = _span(ib0, cu, sx0 - 0.5, sx1 + 0.5, xs, xe)
-            if xs > xe:
-                continue
-            x0 = int(xs)  # xs, xe >= 0 here: int() is floor
-            x0 += x0 < xs
-            x1 = int(xe)
-            u = b00 * x0 + cu
-            v = b10 * x0 + cv
-            check = thr2 >= 0
-            hx = hy = hz = sx = sy = sz = 0.0
-            if check:  # H (u, v, 1) of the pre-image is affine in x along the row
-                hx = rel[0] * u + rel[1] * v + rel[2]
-                hy = rel[3] * u + rel[4] * v + rel[5]
-                hz = rel[6] * u + rel[7] * v + rel[8]
-                sx = rel[0] * b00 + rel[1] * b10
-                sy = rel[3] * b00 + rel[4] * b10
-                sz = rel[6] * b00 + rel[7] * b10
-            for x in range(x0, x1 + 1):
-                if ids[y, x] < 0:
-                    ui = min(max(int(u + 0.5), bx0), bx1)  # u >= bx0 - 0.5 > -1: int() is floor
-                    vi = min(max(int(v + 0.5), by0), by1)
-                    if labels[vi, ui] == kk and (
-                        not check or _lands_near(depth[vi, ui], hx, hy, hz, rel, x, y, thr2)
-                    ):
-                        ids[y, x] = k
-                u += b00
-                v += b10
-                hx += sx
-                hy += sy
-                hz += sz
-
-
-@njit(cache=True, parallel=True)
-def _raster(
-    lab0, lab1, lab2, lab3, n, bbox, span_off, spans, order, order_off, inv, box, ids, n_bands,
-    dep0, dep1, dep2, dep3, rel, thr2,
-):  # fmt: skip
-    """Draw the warped superpixels of ``n <= 4`` views front to back into their id buffers.
-
-    View ``j`` (labels ``lab<j>``, boxes ``bbox[j]``, row extents ``spans[span_off[j, k] + y - y0]``,
-    inverse affine maps ``inv[j]``, destination boxes ``box[j]``) draws superpixels
-    ``order[order_off[j]:order_off[j + 1]]`` (nearest first). ``ids[j]`` (-1 = free) gets the
-    superpixel of every pixel that maps back onto one of that superpixel's own source pixels
-    (nearest pixel); the first (nearest) superpixel keeps a pixel. Only the x-range of each row
-    whose pre-image lies in the superpixel's box and in its column extent over the source rows
-    crossed (both grown by half a pixel) is visited. Rows are split into ``n_bands`` bands
-    processed in parallel.
-    """
-    h = ids.shape[1]
-    for band in prange(n_bands):
-        r0 = band * h // n_bands
-        r1 = (band + 1) * h // n_bands - 1
-        for j in range(n):
-            _raster_band(
-                _pick(lab0, lab1, lab2, lab3, j),
-                bbox[j],
-                span_off[j],
-                spans,
-                order[order_off[j] : order_off[j + 1]],
-                inv[j],
-                box[j],
-                ids[j],
-                r0,
-                r1,
-                _pick(dep0, dep1, dep2, dep3, j),
-                rel[j],
-                thr2,
-            )
-
-
-@njit(cache=True)
-def _bilinear(img, u, v):
-    """``img(u, v)`` (bilinear, clamped) as three float32."""
-    h, w = img.shape[0], img.shape[1]
-    uc = min(max(u, 0.0), w - 1.0)
-    vc = min(max(v, 0.0), h - 1.0)
-    u0 = int(uc)
-    v0 = int(vc)
-    u1 = min(u0 + 1, w - 1)
-    v1 = min(v0 + 1, h - 1)
-    fu = np.float32(uc - u0)
-    fv = np.float32(vc - v0)
-    w00 = (np.float32(1.0) - fu) * (np.float32(1.0) - fv)
-    w01 = fu * (np.float32(1.0) - fv)
-    w10 = (np.float32(1.0) - fu) * fv
-    w11 = fu * fv
-    r = w00 * img[v0, u0, 0] + w01 * img[v0, u1, 0] + w10 * img[v1, u0, 0] + w11 * img[v1, u1, 0]
-    g = w00 * img[v0, u0, 1] + w01 * img[v0, u1, 1] + w10 * img[v1, u0, 1] + w11 * img[v1, u1, 1]
-    b = w00 * img[v0, u0, 2] + w01 * img[v0, u1, 2] + w10 * img[v1, u0, 2] + w11 * img[v1, u1, 2]
-    return np.float32(r), np.float32(g), np.float32(b)
-
-
-@njit(cache=True)
-def _put_rgb(out, y, x, r, g, b):
-    """Round three float32 colours in 0..255 into ``out[y, x]``."""
-    out[y, x, 0] = np.uint8(min(r + np.float32(0.5), np.float32(255.0)))
-    out[y, x, 1] = np.uint8(min(g + np.float32(0.5), np.float32(255.0)))
-    out[y, x, 2] = np.uint8(min(b + np.float32(0.5), np.float32(255.0)))
-
-
-@njit(cache=True, inline='always')
-def _refine_preimage(depth, rel, x, y, u, v, a00, a01, a10, a11, iters, max_shift):
-    """Pre-image ``(u, v)`` of novel pixel ``(x, y)`` corrected with the source depth (Newton steps).
-
-    The superpixel's affine map gives ``(u, v)``; each step projects source pixel ``(u, v)`` at its
-    own depth (nearest pixel) into the novel view and moves ``(u, v)`` by the affine map's linear part
-    ``a`` applied to the residual, by at most ``max_shift`` px in total. ``rel``: ``H = K_n R K_s^-1``
-    (9, row-major) and ``K_n t`` (3) of the source-to-novel transform ``(R, t)``, so that source
-    pixel ``(u, v)`` at depth ``d`` lands at ``H (u, v, 1) d + K_n t`` (homogeneous novel-view
-    pixel). Unknown or sky depth stops the steps.
-    """
-    h, w = depth.shape
-    u0, v0 = u, v
-    for _ in range(iters):
-        ui = min(max(int(u + 0.5), 0), w - 1)
-        vi = min(max(int(v + 0.5), 0), h - 1)
-        d = np.float64(depth[vi, ui])
-        if not (d > 0 and d < np.inf):
-            break
-        zc = (rel[6] * u + rel[7] * v + rel[8]) * d + rel[11]
-        if not zc > 1e-6:
-            break
-        iz = 1.0 / zc
-        rx = x - ((rel[0] * u + rel[1] * v + rel[2]) * d + rel[9]) * iz
-        ry = y - ((rel[3] * u + rel[4] * v + rel[5]) * d + rel[10]) * iz
-        u = min(max(u + a00 * rx + a01 * ry, u0 - max_shift), u0 + max_shift)
-        v = min(max(v + a10 * rx + a11 * ry, v0 - max_shift), v0 + max_shift)
-    return u, v
-
-
-@njit(cache=True)
-def _same_surface(za, zb, tol):
-    """1 when depths ``za`` and ``zb`` are within a factor ``1 + tol`` (both ``+inf``: sky), else 0."""
-    lo = min(za, zb)
-    hi = max(za, zb)
-    return 1 if hi <= lo * (1.0 + tol) or lo == np.inf else 0
-
-
-@njit(cache=True, parallel=True)
-def _blend(
-    rgb0,
-    rgb1,
-    rgb2,
-    rgb3,
-    ids,
-    inv,
-    pen,
-    zk,
-    n,
-    view_ids,
-    tol,
-    n_blend,
-    sigma,
-    min_rel,
-    dep0,
-    dep1,
-    dep2,
-    dep3,
-    rel,
-    iters,
-    max_shift,
-    fit,
-    min_fit,
-    out_rgb,
-    out_valid,
-    out_src,
-    out_depth,
-):
-    """Blend the warped views per pixel (see the module docstring).
-
-    ``rgb0..rgb3``: the source images of views 0..3 (``n <= 4``; unused ones are dummies);
-    ``ids[j]``: superpixel of view ``j`` drawn at each pixel (-1 none); ``inv[j, k]``: its inverse
-    affine map; ``pen[j, k]`` / ``zk[j, k]``: its angle penalty and depth. The best view (smallest
-    penalty) supplies ``out_src`` / ``out_depth``; the colour is the weighted mean over the
-    ``n_blend`` best views (1: the best alone, the paper): weights ``exp(-((p - p_min) / sigma)^2)``
-    (views with ``(p - p_min) / sigma > _SOFT_CUTOFF`` left out) for ``sigma > 0``, else ULR's
-    ``1 - p / p_max`` (``p_max`` the largest penalty among them; the best view always takes part,
-    views below ``min_rel`` times its weight are left out).
-    ``tol >= 0``: when a strict majority of the views agree on a depth (within a factor ``1 + tol``)
-    only they take part. ``iters > 0``: the colour lookups of superpixels with ``fit[j, k] >
-    min_fit`` are corrected by :func:`_refine_preimage` (depths ``dep<j>``, ``rel[j]``, ``max_shift``).
-    """
-    h, w = out_valid.shape
-    for y in prange(h):
-        sel = np.empty(4, np.int64)
-        sel_p = np.empty(4, np.float32)
-        sel_z = np.empty(4, np.float32)
-        for x in range(w):
-            cnt = 0  # candidate views sorted by penalty (stable: ties keep the nearer view first)
-            zlo = np.inf
-            zhi = -np.inf
-            for j in range(n):
-                k = ids[j, y, x]
-                if k >= 0:
-                    p = pen[j, k]
-                    z = zk[j, k]
-                    zlo = min(zlo, z)
-                    zhi = max(zhi, z)
-                    q = cnt
-                    while q > 0 and sel_p[q - 1] > p:
-                        sel_p[q] = sel_p[q - 1]
-                        sel_z[q] = sel_z[q - 1]
-                        sel[q] = sel[q - 1]
-                        q -= 1
-                    sel_p[q] = p
-                    sel_z[q] = z
-                    sel[q] = j
-                    cnt += 1
-            if tol >= 0 and cnt > 2 and not _same_surface(zlo, zhi, tol):  # vote on the surface
-                zref = np.inf
-                best_votes = 0
-                for a in range(cnt):
-                    votes = 0
-                    for c in range(cnt):
-                        votes += _same_surface(sel_z[a], sel_z[c], tol)
-                    if votes > best_votes or (votes == best_votes and sel_z[a] < zref):
-                        best_votes = votes
-                        zref = sel_z[a]
-                if 2 * best_votes > cnt:  # a strict majority: keep its views, in penalty order
-                    kept = 0
-                    for q in range(cnt):
-                        if _same_surface(sel_z[q], zref, tol):
-                            sel_p[kept] = sel_p[q]
-                            sel[kept] = sel[q]
-                            kept += 1
-                    cnt = kept
-            if cnt == 0:
-                out_valid[y, x] = False
-                out_src[y, x] = -1
-                out_depth[y, x] = 0.0
-                out_rgb[y, x, 0] = 0
-                out_rgb[y, x, 1] = 0
-                out_rgb[y, x, 2] = 0
-                continue
-            b = sel[0]
-            out_valid[y, x] = True
-            out_src[y, x] = view_ids[b]
-            out_depth[y, x] = zk[b, ids[b, y, x]]
-            ar = ag = ab = sw = np.float32(0.0)
-            m = min(cnt, n_blend)
-            p_max = sel_p[m - 1]
-            for q in range(m):
-                if sigma > 0:
-                    d = (sel_p[q] - sel_p[0]) / sigma
-                    if d > _SOFT_CUTOFF:
-                        break
-                    wt = np.float32(math.exp(-d * d))
-                elif q == 0:
-                    wt = np.float32(1.0 - sel_p[0] / p_max) if m > 1 and p_max > 0 else np.float32(1.0)
-                    wt = max(wt, np.float32(1e-6))  # the best view always takes part
-                    w_best = wt
-                else:
-                    wt = np.float32(1.0 - sel_p[q] / p_max)
-                    if not wt > min_rel * w_best:
-                        break
-                j = sel[q]
-                k = ids[j, y, x]
-                u = inv[j, k, 0, 0] * x + inv[j, k, 0, 1] * y + inv[j, k, 0, 2]
-                v = inv[j, k, 1, 0] * x + inv[j, k, 1, 1] * y + inv[j, k, 1, 2]
-                if iters > 0 and fit[j, k] > min_fit:
-                    u, v = _refine_preimage(
-                        _pick(dep0, dep1, dep2, dep3, j), rel[j], x, y, u, v,
-                        inv[j, k, 0, 0], inv[j, k, 0, 1], inv[j, k, 1, 0], inv[j, k, 1, 1], iters, max_shift,
-                    )  # fmt: skip
-                cr, cg, cb = _bilinear(_pick(rgb0, rgb1, rgb2, rgb3, j), u, v)
-                ar += wt * cr
-                ag += wt * cg
-                ab += wt * cb
-                sw += wt
-            _put_rgb(out_rgb, y, x, ar / sw, ag / sw, ab / sw)
-
-
-@njit(cache=True)
-def _splat(rgb, depth, ki, kn, r, t, near, out_rgb, out_z, claimed, with_colour):
-    """Forward-splat every pixel with depth to its nearest novel pixel; keep the nearest (z-buffer)."""
-    h, w = depth.shape
-    oh, ow = out_z.shape
-    for v in range(h):
-        for u in range(w):
-            d = np.float64(depth[v, u])
-            if not d > 0:
-                continue
-            x, y, zz = project_pixel(r, t, ki, kn, np.float64(u), np.float64(v), d, near)
-            if zz != zz:
-                continue
-            if not (-0.5 <= x < ow - 0.5 and -0.5 <= y < oh - 0.5):
-                continue
-            xi = math.floor(x + 0.5)
-            yi = math.floor(y + 0.5)
-            if claimed[yi, xi] and not zz < out_z[yi, xi]:
-                continue
-            claimed[yi, xi] = True
-            out_z[yi, xi] = zz
-            if with_colour:
-                for c in range(3):
-                    out_rgb[yi, xi, c] = rgb[v, u, c]
-
-
-@njit(cache=True)
-def _fill_cracks(z, claimed):
-    """One 3x3 pass: an unclaimed pixel with claimed neighbours takes their smallest depth."""
-    h, w = z.shape
-    src = z.copy()
-    had = claimed.copy()
-    for y in range(h):
-        for x in range(w):
-            if had[y, x]:
-                continue
-            best = np.inf
-            found = False
-            for yy in range(max(y - 1, 0), min(y + 2, h)):
-                for xx in range(max(x - 1, 0), min(x + 2, w)):
-                    if had[yy, xx] and (not found or src[yy, xx] < best):
-                        best = src[yy, xx]
-                        found = True
-            if found:
-                z[y, x] = best
-                claimed[y, x] = True
-
-
-@njit(cache=True, parallel=True)
-def _ulr_view(rgb, depth, ki, kn, r_in, t_in, nz, claimed, eps, res_w, out_rgb, out_pen):
-    """ULR penalty and colour of one source view at every novel pixel (``+inf`` penalty: not seen).
-
-    ``r_in``, ``t_in`` map novel-frame points into the view's frame; the view centre in the novel
-    frame is ``c = -r_in^T t_in``.
-    """
-    oh, ow = nz.shape
-    h, w = depth.shape
-    cx = -(r_in[0, 0] * t_in[0] + r_in[1, 0] * t_in[1] + r_in[2, 0] * t_in[2])
-    cy = -(r_in[0, 1] * t_in[0] + r_in[1, 1] * t_in[1] + r_in[2, 1] * t_in[2])
-    cz = -(r_in[0, 2] * t_in[0] + r_in[1, 2] * t_in[1] + r_in[2, 2] * t_in[2])
-    for y in prange(oh):
-        for x in range(ow):
-            out_pen[y, x] = np.inf
-            if not claimed[y, x]:
-                continue
-            d = np.float64(nz[y, x])
-            px = (x - kn[2]) / kn[0]
-            py = (y - kn[3]) / kn[1]
-            pz = 1.0
-            sky = d == np.inf
-            if not sky:
-                px *= d
-                py *= d
-                pz = d
-            xc = r_in[0, 0] * px + r_in[0, 1] * py + r_in[0, 2] * pz
-            yc = r_in[1, 0] * px + r_in[1, 1] * py + r_in[1, 2] * pz
-            zc = r_in[2, 0] * px + r_in[2, 1] * py + r_in[2, 2] * pz
-            if not sky:
-                xc += t_in[0]
-                yc += t_in[1]
-                zc += t_in[2]
-            if not zc > 1e-9:
-                continue
-            u = ki[0] * xc / zc + ki[2]
-            v = ki[1] * yc / zc + ki[3]
-            if not (-0.5 <= u < w - 0.5 and -0.5 <= v < h - 0.5):
-                continue
-            ui = math.floor(u + 0.5)
-            vi = math.floor(v + 0.5)
-            dv = np.float64(depth[vi, ui])
-            if sky:
-                if dv != np.inf:
-                    continue
-                pen = 0.0
-            else:
-                if not (dv < np.inf and abs(dv - zc) <= eps * zc):
-                    continue
-                qx, qy, qz = px - cx, py - cy, pz - cz
-                di = math.sqrt(qx * qx + qy * qy + qz * qz)
-                dn = math.sqrt(px * px + py * py + pz * pz)
-                c = (qx * px + qy * py + qz * pz) / max(di * dn, 1e-300)
-                pen = math.acos(min(1.0, max(-1.0, c))) + res_w * max(0.0, (di - dn) / di)
-            out_pen[y, x] = pen
-            cr, cg, cb = _bilinear(rgb, u, v)
-            _put_rgb(out_rgb, y, x, cr, cg, cb)
-
-
-@njit(cache=True, parallel=True)
-def _ulr_blend(rgb, pen, ids, nz, out_rgb, out_valid, out_src, out_depth):
-    """ULR weights ``1 - p / p_max`` over the views that see each pixel (equal weights if all 0)."""
-    n, h, w = pen.shape
-    for y in prange(h):
-        for x in range(w):
-            pmax = -1.0
-            pmin = np.inf
-            best = -1
-            cnt = 0
-            for i in range(n):
-                p = pen[i, y, x]
-                if p < np.inf:
-                    cnt += 1
-                    pmax = max(pmax, p)
-                    if p < pmin:
-                        pmin = p
-                        best = i
-            if cnt == 0:
-                out_valid[y, x] = False
-                out_src[y, x] = -1
-                out_depth[y, x] = 0.0
-                for c in range(3):
-                    out_rgb[y, x, c] = 0
-                continue
-            s = np.zeros(3)
-            sw = 0.0
-            for i in range(n):
-                p = pen[i, y, x]
-                if p < np.inf:
-                    wt = 1.0 - p / pmax if pmax > 0 else 1.0
-                    for c in range(3):
-                        s[c] += wt * rgb[i, y, x, c]
-                    sw += wt
-            if not sw > 1e-12:
-                s[:] = 0.0
-                for i in range(n):
-                    if pen[i, y, x] < np.inf:
-                        for c in range(3):
-                            s[c] += rgb[i, y, x, c]
-                sw = cnt
-            for c in range(3):
-                out_rgb[y, x, c] = np.uint8(s[c] / sw + 0.5)
-            out_valid[y, x] = True
-            out_src[y, x] = ids[best]
-            out_depth[y, x] = nz[y, x]
-
-
-# ------------------------------------------------------------------------------------- renderer
-
-
-def _intrinsics(camera: PinholeCamera) -> NDArray[np.float64]:
-    return np.array([camera.fx, camera.fy, camera.cx, camera.cy])
-
-
-def _relative(t_wn: NDArray[np.float64], t_ws: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
-    """Rotation and translation of ``T_ns = T_wn^-1 T_ws`` (source frame -> novel frame)."""
-    r_wn = t_wn[:3, :3]
-    r = r_wn.T @ t_ws[:3, :3]
-    t = r_wn.T @ (t_ws[:3, 3] - t_wn[:3, 3])
-    return np.ascontiguousarray(r), np.ascontiguousarray(t)
-
-
-def _rel_params(
-    t_wn: NDArray[np.float64], novel: PinholeCamera, t_ws: NDArray[np.float64], source: PinholeCamera
-) -> NDArray[np.float64]:
-    """The ``rel`` row of :func:`_refine_preimage` / :func:`_lands_near` for one source view."""
-    r, t = _relative(t_wn, t_ws)
-    fx, fy, cx, cy = _intrinsics(novel)
-    k_n = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    fx, fy, cx, cy = _intrinsics(source)
-    k_s_inv = np.array([[1 / fx, 0.0, -cx / fx], [0.0, 1 / fy, -cy / fy], [0.0, 0.0, 1.0]])
-    return np.concatenate([(k_n @ r @ k_s_inv).ravel(), k_n @ t])
 
 
 class NovelViewRenderer:
@@ -1095,7 +345,7 @@ class NovelViewRenderer:
         span_off = np.zeros(stats.n_labels + 1, np.int64)
         np.cumsum(bbox[:, 3] - bbox[:, 1] + 1, out=span_off[1:])
         spans = np.empty((span_off[-1], 2), np.int16)
-        _row_spans(labels, bbox, span_off, spans)
+        row_spans(labels, bbox, span_off, spans)
         c = _ViewCache(labels.astype(np.int16) if small else labels, bbox, span_off, spans, model)
         self._cache[i] = c
         while len(self._cache) > cfg.max_cached_views:
@@ -1230,7 +480,7 @@ class NovelViewRenderer:
             res = warp_superpixels(c.model, v.camera, v.t_wc, camera, t_wn, cfg.near)
             ok = res.ok.copy()
             kj = ok.size
-            _affine_maps(c.model.tri, res.vertices, ok, c.bbox, max_area, w, h, inv[j, :kj], box[j, :kj])
+            affine_maps(c.model.tri, res.vertices, ok, c.bbox, max_area, w, h, inv[j, :kj], box[j, :kj])
             sel = np.flatnonzero(ok)
             orders.append(sel[np.argsort(res.depth[sel], kind='stable')])
             pen[j, :kj] = res.angle_deg
@@ -1254,12 +504,15 @@ class NovelViewRenderer:
         if iters > 0 or thr2 >= 0:
             deps = [np.ascontiguousarray(self.views[i].depth, dtype=np.float32) for i, _ in chosen]
             rel = np.array(
-                [_rel_params(t_wn, camera, self.views[i].t_wc, self.views[i].camera) for i, _ in chosen]
+                [
+                    reprojection_params(t_wn, camera, self.views[i].t_wc, self.views[i].camera)
+                    for i, _ in chosen
+                ]
             )
         else:
             deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 12))
         deps += [deps[0]] * (4 - len(deps))
-        _raster(
+        raster_views(
             *labels, n, bbox, span_off, spans, np.concatenate(orders), order_off, inv, box, ids, n_bands,
             *deps, rel, thr2,
         )  # fmt: skip
@@ -1269,7 +522,7 @@ class NovelViewRenderer:
         view_ids = np.array([i for i, _ in chosen], np.int16)
         n_blend = 1 if cfg.blend == 'paper' else 4
         sigma = cfg.soft_sigma_deg if cfg.blend == 'soft' else -1.0  # < 0: ULR weights
-        _blend(
+        blend_views(
             *rgbs, ids, inv, pen, zk, n, view_ids, tol, n_blend, sigma, cfg.ulr_blend_min_weight, *deps, rel,
             iters, cfg.depth_lookup_max_px, fit, cfg.depth_lookup_min_fit_px, out_rgb, valid, src, depth,
         )  # fmt: skip
@@ -1281,14 +534,26 @@ class NovelViewRenderer:
         z = np.full((h, w), np.inf, np.float64)
         claimed = np.zeros((h, w), np.bool_)
         src = np.full((h, w), -1, np.int16)
-        kn = _intrinsics(camera)
+        kn = intrinsics_vector(camera)
         for i in cands:
             v = self.views[i]
             before = claimed.copy()
             zb = z.copy()
-            r, t = _relative(t_wn, v.t_wc)
+            r, t = relative_pose(t_wn, v.t_wc)
             depth = np.ascontiguousarray(v.depth, dtype=np.float32)
-            _splat(v.rgb, depth, _intrinsics(v.camera), kn, r, t, self.config.near, out_rgb, z, claimed, True)
+            _splat(
+                v.rgb,
+                depth,
+                intrinsics_vector(v.camera),
+                kn,
+                r,
+                t,
+                self.config.near,
+                out_rgb,
+                z,
+                claimed,
+                True,
+            )
             src[claimed & (~before | (z < zb))] = i
         depth = np.where(claimed, z, 0.0).astype(np.float32)
         return Rendered(out_rgb, claimed, src, depth, list(cands), None, self.skipped_views)
@@ -1296,27 +561,27 @@ class NovelViewRenderer:
     def _render_ulr(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
         cfg = self.config
         h, w = camera.height, camera.width
-        kn = _intrinsics(camera)
+        kn = intrinsics_vector(camera)
         nz = np.full((h, w), np.inf, np.float64)
         claimed = np.zeros((h, w), np.bool_)
         dummy = np.zeros((1, 1, 3), np.uint8)
         for i in cands:
             v = self.views[i]
-            r, t = _relative(t_wn, v.t_wc)
+            r, t = relative_pose(t_wn, v.t_wc)
             depth = np.ascontiguousarray(v.depth, dtype=np.float32)
-            _splat(dummy, depth, _intrinsics(v.camera), kn, r, t, cfg.near, dummy, nz, claimed, False)
+            _splat(dummy, depth, intrinsics_vector(v.camera), kn, r, t, cfg.near, dummy, nz, claimed, False)
         _fill_cracks(nz, claimed)
         n = len(cands)
         rgb_v = np.zeros((n, h, w, 3), np.uint8)
         pen_v = np.empty((n, h, w), np.float64)
         for j, i in enumerate(cands):
             v = self.views[i]
-            r_sn, t_sn = _relative(v.t_wc, t_wn)  # novel frame -> view frame
+            r_sn, t_sn = relative_pose(v.t_wc, t_wn)  # novel frame -> view frame
             depth = np.ascontiguousarray(v.depth, dtype=np.float32)
             _ulr_view(
                 v.rgb,
                 depth,
-                _intrinsics(v.camera),
+                intrinsics_vector(v.camera),
                 kn,
                 r_sn,
                 t_sn,

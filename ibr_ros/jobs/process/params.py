@@ -17,7 +17,7 @@ from ibr_ros.core.depth.schedule import ScheduleConfig, parse_depth_range
 from ibr_ros.core.flight.keyframes import KeyframeConfig
 from ibr_ros.core.flight.status import POSE_MODES
 from ibr_ros.core.registration.sfm_session import ScaleHint
-from ibr_ros.core.render.renderer import RenderConfig
+from ibr_ros.core.render import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
 from ibr_ros.node_config import VIEW_RENDERER

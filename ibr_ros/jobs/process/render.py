@@ -9,7 +9,7 @@ import numpy as np
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.path import interpolate_path, path_stamps
-from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
+from ibr_ros.core.render import NovelViewRenderer, SourceView
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import _Configs

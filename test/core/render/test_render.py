@@ -12,7 +12,8 @@ import ibr_ros.core.render.renderer as render_mod
 from ibr_ros.core.evaluation.rephoto import score
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import look_at, matrix_from_rt
-from ibr_ros.core.render.renderer import PAPER_FIELDS, NovelViewRenderer, RenderConfig, Rendered, SourceView
+from ibr_ros.core.render import PAPER_FIELDS, NovelViewRenderer, RenderConfig, Rendered, SourceView
+from ibr_ros.core.render.blend import blend_views
 from ibr_ros.core.render.superpixels import slic, superpixel_stats
 from ibr_ros.core.render.warp import (
     barycentric,
@@ -336,7 +337,7 @@ def _blend_one_pixel(depths: list[float], tol: float | None) -> tuple[int, tuple
         np.zeros((1, 1), np.float32),
     )
     tol_arg = -1.0 if tol is None else tol
-    render_mod._blend(
+    blend_views(
         *rgbs, ids, np.zeros((n, 1, 2, 3)), pen, zk, n, np.arange(n, dtype=np.int16), tol_arg,
         4, -1.0, 0.0, *dep, np.zeros((n, 12)), 0, 1.0, np.zeros((n, 1)), 0.0, *out,
     )  # fmt: skip
