@@ -4,8 +4,9 @@ Scene: the synthetic town (``SceneConfig(seed=3)``), an orbit flight at 15 fps; 
 and 36 are the source views (exact depth), frame 30 is the held-out novel view. Warm: the per-view
 cache is filled and the kernels compiled before timing; each timed query is a new pose (the
 held-out pose moved by up to 0.5 m), median of ``RUNS`` queries, with 2 threads and with 1 thread.
-The baseline, run in the same process on the same queries, is the point-splat renderer of the
-same class (nearest view, 1-pixel splats, z-buffer); the ULR baseline is timed for information.
+The baseline, run in the same process on the same queries, is the point-splat renderer of
+:mod:`ibr_ros.core.evaluation.baselines` (nearest view, 1-pixel splats, z-buffer); the ULR baseline
+is timed for information.
 Also printed: rephotography scores of the held-out frame for every renderer, the time to prepare a
 view (SLIC + statistics + warp model), and memory per cached view (cache + the view's own rgb and
 depth; target: 100 views <= 1 GB, i.e. <= 10 MB per view), both counted (``nbytes``) and measured
@@ -30,7 +31,7 @@ sys.path.insert(0, str(REPO))  # benchmark the checkout, not an installed copy
 
 from timing import median_ms  # noqa: E402
 
-from ibr_ros.core.evaluation.rephoto import score  # noqa: E402
+from ibr_ros.core.evaluation import SplatRenderer, UlrRenderer, score  # noqa: E402
 from ibr_ros.core.geometry.camera import PinholeCamera  # noqa: E402
 from ibr_ros.core.geometry.transforms import matrix_from_rt  # noqa: E402
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView  # noqa: E402
@@ -84,8 +85,8 @@ def main() -> int:
         'ibr (no depth lookup)': NovelViewRenderer(views, RenderConfig(depth_lookup_steps=0)),
         'ibr (lookup everywhere)': NovelViewRenderer(views, RenderConfig(depth_lookup_min_fit_px=0.0)),
         'ibr (default, all views)': NovelViewRenderer(views, RenderConfig(ulr_blend_min_weight=0.0)),
-        'splat (nearest view)': NovelViewRenderer(views, RenderConfig(renderer='splat')),
-        'ulr': NovelViewRenderer(views, RenderConfig(renderer='ulr')),
+        'splat (nearest view)': SplatRenderer(views, RenderConfig()),
+        'ulr': UlrRenderer(views, RenderConfig()),
     }
     ibr = renderers['ibr (default)']
     NovelViewRenderer(views[:1], RenderConfig()).prepare()  # compile

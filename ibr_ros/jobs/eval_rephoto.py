@@ -20,8 +20,8 @@ reconstruction serves every holdout), then :class:`~ibr_ros.core.depth.refine.De
 
 Methods (``renderer@depth``): ``ours`` (this project's renderer: the options' ``render`` settings,
 by default :class:`RenderConfig`'s) on every source; ``paper`` (the same with
-:meth:`RenderConfig.as_paper`: the paper's renderer exactly), ``ulr`` and ``splat`` on ``fused`` and
-``gt``.
+:meth:`RenderConfig.as_paper`: the paper's renderer exactly), ``ulr`` and ``splat`` (the baselines
+of :mod:`ibr_ros.core.evaluation.baselines`) on ``fused`` and ``gt``.
 
 Scores (0..255 colour units, :mod:`ibr_ros.core.evaluation.rephoto`): the holes of every render (pixels no
 source covers) are filled by image inpainting (``cv2.inpaint`` Telea, radius 3) before scoring, as
@@ -43,8 +43,8 @@ import json
 import logging
 import re
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.depth.sky import apply_sky_depth
-from ibr_ros.core.evaluation.rephoto import shiftable_l1
+from ibr_ros.core.evaluation import SplatRenderer, UlrRenderer, shiftable_l1
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import load_views, sparse_points, write_atomic
@@ -99,10 +99,13 @@ class Method:
     def key(self) -> str:
         return f'{self.name}@{self.depth}'
 
-    def config(self, base: RenderConfig) -> RenderConfig:
-        if self.name == 'paper':
-            return replace(base, renderer='ibr').as_paper()
-        return replace(base, renderer='ibr' if self.name == 'ours' else self.name)
+    def renderer(self, views: Sequence[SourceView], base: RenderConfig) -> NovelViewRenderer:
+        """This method's renderer of ``views`` with the base settings ``base``."""
+        if self.name == 'splat':
+            return SplatRenderer(views, base)
+        if self.name == 'ulr':
+            return UlrRenderer(views, base)
+        return NovelViewRenderer(views, base.as_paper() if self.name == 'paper' else base)
 
 
 METHODS: tuple[Method, ...] = (
@@ -147,8 +150,8 @@ class RephotoEvalOptions:
 
     ``windows``: ``(patch, shift)`` pairs of the Table 3 analogue (the main window 7x7 +-2 is
     always scored); ``methods``: keys of :data:`METHODS`; ``render``: base renderer settings
-    (``renderer`` and ``blend`` are set per method); ``fill_holes``: inpaint render holes before
-    scoring; ``png``: write ``holdout_NNN.png``.
+    (``paper`` switches the additions off; the baselines use its view selection); ``fill_holes``:
+    inpaint render holes before scoring; ``png``: write ``holdout_NNN.png``.
     """
 
     step: int = 5
@@ -315,7 +318,7 @@ def evaluate_rephoto(
                 if k != h
             ]
             tick = time.perf_counter()
-            r = NovelViewRenderer(sources, m.config(o.render)).render(view.t_wc, view.camera)
+            r = m.renderer(sources, o.render).render(view.t_wc, view.camera)
             timings['render'] += time.perf_counter() - tick
             tick = time.perf_counter()
             scores, main, curve, raw_curve, img = _score_render(view.rgb, gts[h].rgb, r.rgb, r.valid, o)

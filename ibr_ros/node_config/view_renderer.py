@@ -17,12 +17,6 @@ INTRINSICS = ('width', 'height', 'hfov_deg')
 #: Parameters that configure the renderer itself (:class:`RenderConfig` fields, same names).
 _RENDER = (
     Param(
-        'renderer',
-        'ibr',
-        "'ibr' (superpixel warp) or the baselines 'splat' and 'ulr'",
-        choices=('ibr', 'splat', 'ulr'),
-    ),
-    Param(
         'blend',
         'ulr',
         "'ulr' (weights 1 - p / p_max), 'paper' (smallest angle penalty wins) or 'soft'",

@@ -1,9 +1,13 @@
 """Evaluation only, not on the product path: rephotography error (shiftable L1) and the renderer
-baselines the product is measured against.
+baselines the product is measured against (point splat, ULR).
 """
 
 from __future__ import annotations
 
+from ibr_ros.core.evaluation.baselines import (
+    SplatRenderer,
+    UlrRenderer,
+)
 from ibr_ros.core.evaluation.rephoto import (
     RephotoScore,
     error_curve,
@@ -13,6 +17,8 @@ from ibr_ros.core.evaluation.rephoto import (
 
 __all__ = [
     'RephotoScore',
+    'SplatRenderer',
+    'UlrRenderer',
     'error_curve',
     'score',
     'shiftable_l1',

@@ -29,8 +29,6 @@ class RenderConfig:
     :meth:`as_paper` / :meth:`paper` switch them off: the paper exactly.
 
     Attributes:
-        renderer: ``'ibr'`` (the paper's superpixel warp), ``'splat'`` or ``'ulr'`` (baselines for
-            evaluation).
         blend: ``'paper'`` (smallest penalty wins), ``'soft'`` (Gaussian falloff of the penalty) or
             ``'ulr'`` (weights ``1 - p / p_max`` over the views covering the pixel, as ULR).
         resolution_weight_deg: degrees added to a view's angle penalty per unit of ULR's resolution
@@ -63,11 +61,8 @@ class RenderConfig:
             0: all).
         max_cached_views: LRU size of the per-view cache.
         min_depth_samples, min_depth_fraction: ``has_depth`` rule of ``superpixel_stats``.
-        splat_views: views splatted by ``renderer='splat'``.
-        ulr_occlusion_eps, ulr_resolution_weight: ``renderer='ulr'`` occlusion test and penalty.
     """
 
-    renderer: Literal['ibr', 'splat', 'ulr'] = 'ibr'
     blend: Literal['paper', 'soft', 'ulr'] = 'ulr'
     resolution_weight_deg: float = 40.0
     depth_split: float | None = 0.02
@@ -94,18 +89,13 @@ class RenderConfig:
     max_cached_views: int = 64
     min_depth_samples: int = 2
     min_depth_fraction: float = 0.05
-    splat_views: int = 1
-    ulr_occlusion_eps: float = 0.05
-    ulr_resolution_weight: float = 0.1
 
     def __post_init__(self) -> None:
-        if self.renderer not in ('ibr', 'splat', 'ulr'):
-            raise ValueError(f"renderer must be 'ibr', 'splat' or 'ulr', got {self.renderer!r}")
         if self.blend not in ('paper', 'soft', 'ulr'):
             raise ValueError(f"blend must be 'paper', 'soft' or 'ulr', got {self.blend!r}")
         if not 1 <= self.n_views <= 4:
             raise ValueError(f'n_views must be 1..4, got {self.n_views}')
-        positive = ('n_segments', 'max_cached_views', 'splat_views', 'near', 'far_factor', 'soft_sigma_deg')
+        positive = ('n_segments', 'max_cached_views', 'near', 'far_factor', 'soft_sigma_deg')
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')

@@ -1,9 +1,7 @@
-"""Novel-view rendering from posed RGB-D source views (Liu et al. 2020, Sec. III-B) and two baselines.
+"""Novel-view rendering from posed RGB-D source views (Liu et al. 2020, Sec. III-B).
 
-``NovelViewRenderer(views, config).render(t_wc, camera)`` with ``config.renderer``:
-
-``'ibr'``: the paper's pipeline; the defaults add five steps (marked *added*) that
-:meth:`RenderConfig.as_paper` switches off.
+``NovelViewRenderer(views, config).render(t_wc, camera)``: the paper's pipeline; the defaults add
+five steps (marked *added*) that :meth:`RenderConfig.as_paper` switches off.
 
 1. View selection: among the usable source views whose optical axis is within
    ``max_axis_angle_deg`` of the novel one (others face away and are ignored), the ``n_views``
@@ -75,15 +73,6 @@ view fails more gently.
 The kernels run in parallel (numba threads): the warp over superpixels (one region per view), the
 rasterisation (all views at once) and the blend over bands of destination rows.
 
-Baselines for evaluation, same interface: ``'splat'`` forward-warps every pixel with depth of the
-``splat_views`` nearest selected views (default 1) as a 1-pixel splat with a z-buffer; ``'ulr'``
-is an unstructured-lumigraph blend in the spirit of SIBR ``ulr_v3``: the depth maps of the selected
-views are splatted into the novel view (z-buffer min, then one 3x3 pass fills single-pixel cracks
-with the nearest neighbour depth), every novel pixel's 3D point is reprojected into each selected
-view, kept if the view's own depth there agrees within ``ulr_occlusion_eps`` (relative), penalised
-by ``angle (rad) + ulr_resolution_weight * max(0, (|P - C_i| - |P - C_n|) / |P - C_i|)`` and
-blended with weights ``1 - p / p_max`` over the kept views (equal weights if those are all 0).
-
 Caching: the per-view data (int16 labels, boxes, per-row extents, warp model: about 2.7 MB at
 960x540 and 1500 superpixels; the source rgb and depth are referenced, not copied) is computed on
 first use (or by :meth:`NovelViewRenderer.prepare`) and kept in an LRU of ``max_cached_views``
@@ -114,10 +103,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import GeometryError, validate_pose
-from ibr_ros.core.render.baselines import _fill_cracks, _splat, _ulr_blend, _ulr_view
 from ibr_ros.core.render.blend import blend_views
 from ibr_ros.core.render.config import RenderConfig
-from ibr_ros.core.render.projection import intrinsics_vector, relative_pose, reprojection_params
+from ibr_ros.core.render.projection import reprojection_params
 from ibr_ros.core.render.raster import affine_maps, raster_views, row_spans
 from ibr_ros.core.render.superpixels import slic, split_at_depth_edges, superpixel_stats
 from ibr_ros.core.render.warp import WarpModel, prepare_warp, warp_superpixels
@@ -354,8 +342,6 @@ class NovelViewRenderer:
 
     def prepare(self, indices: Sequence[int] | None = None) -> None:
         """Fill the per-view cache now (default: all views, up to ``max_cached_views``)."""
-        if self.config.renderer != 'ibr':
-            return
         for i in range(len(self.views)) if indices is None else indices:
             self._view_cache(int(i))
 
@@ -424,13 +410,7 @@ class NovelViewRenderer:
         t_wn, cands, reason = self._query_pose(t_wc)
         if reason is not None or t_wn is None:
             return Rendered.empty(camera, reason, self.skipped_views)
-        renderer = self.config.renderer
-        if renderer == 'ibr':
-            out = self._render_ibr(t_wn, camera, cands)
-        elif renderer == 'splat':
-            out = self._render_splat(t_wn, camera, cands[: min(self.config.n_views, self.config.splat_views)])
-        else:
-            out = self._render_ulr(t_wn, camera, cands[: self.config.n_views])
+        out = self._render_views(t_wn, camera, cands)
         if out.reason is None and not out.valid.any():
             return Rendered(
                 out.rgb,
@@ -452,7 +432,12 @@ class NovelViewRenderer:
             np.empty((h, w), np.float32),
         )
 
-    def _render_ibr(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
+    def _render_views(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
+        """Render from the first usable of ``cands`` (usable views facing ``t_wn``, nearest first).
+
+        ``t_wn``: the validated novel camera-to-world pose. The evaluation baselines
+        (:mod:`ibr_ros.core.evaluation.baselines`) override this and share the rest.
+        """
         cfg = self.config
         chosen: list[tuple[int, _ViewCache]] = []
         for i in cands:
@@ -527,71 +512,3 @@ class NovelViewRenderer:
             iters, cfg.depth_lookup_max_px, fit, cfg.depth_lookup_min_fit_px, out_rgb, valid, src, depth,
         )  # fmt: skip
         return Rendered(out_rgb, valid, src, depth, [i for i, _ in chosen], None, self.skipped_views)
-
-    def _render_splat(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
-        h, w = camera.height, camera.width
-        out_rgb = np.zeros((h, w, 3), np.uint8)
-        z = np.full((h, w), np.inf, np.float64)
-        claimed = np.zeros((h, w), np.bool_)
-        src = np.full((h, w), -1, np.int16)
-        kn = intrinsics_vector(camera)
-        for i in cands:
-            v = self.views[i]
-            before = claimed.copy()
-            zb = z.copy()
-            r, t = relative_pose(t_wn, v.t_wc)
-            depth = np.ascontiguousarray(v.depth, dtype=np.float32)
-            _splat(
-                v.rgb,
-                depth,
-                intrinsics_vector(v.camera),
-                kn,
-                r,
-                t,
-                self.config.near,
-                out_rgb,
-                z,
-                claimed,
-                True,
-            )
-            src[claimed & (~before | (z < zb))] = i
-        depth = np.where(claimed, z, 0.0).astype(np.float32)
-        return Rendered(out_rgb, claimed, src, depth, list(cands), None, self.skipped_views)
-
-    def _render_ulr(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
-        cfg = self.config
-        h, w = camera.height, camera.width
-        kn = intrinsics_vector(camera)
-        nz = np.full((h, w), np.inf, np.float64)
-        claimed = np.zeros((h, w), np.bool_)
-        dummy = np.zeros((1, 1, 3), np.uint8)
-        for i in cands:
-            v = self.views[i]
-            r, t = relative_pose(t_wn, v.t_wc)
-            depth = np.ascontiguousarray(v.depth, dtype=np.float32)
-            _splat(dummy, depth, intrinsics_vector(v.camera), kn, r, t, cfg.near, dummy, nz, claimed, False)
-        _fill_cracks(nz, claimed)
-        n = len(cands)
-        rgb_v = np.zeros((n, h, w, 3), np.uint8)
-        pen_v = np.empty((n, h, w), np.float64)
-        for j, i in enumerate(cands):
-            v = self.views[i]
-            r_sn, t_sn = relative_pose(v.t_wc, t_wn)  # novel frame -> view frame
-            depth = np.ascontiguousarray(v.depth, dtype=np.float32)
-            _ulr_view(
-                v.rgb,
-                depth,
-                intrinsics_vector(v.camera),
-                kn,
-                r_sn,
-                t_sn,
-                nz,
-                claimed,
-                cfg.ulr_occlusion_eps,
-                cfg.ulr_resolution_weight,
-                rgb_v[j],
-                pen_v[j],
-            )
-        out_rgb, valid, src, depth = self._alloc(camera)
-        _ulr_blend(rgb_v, pen_v, np.array(cands, np.int16), nz, out_rgb, valid, src, depth)
-        return Rendered(out_rgb, valid, src, depth.astype(np.float32), list(cands), None, self.skipped_views)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ibr_ros.core.render.renderer as render_mod
-from ibr_ros.core.evaluation.rephoto import score
+from ibr_ros.core.evaluation import SplatRenderer, UlrRenderer, score
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import look_at, matrix_from_rt
 from ibr_ros.core.render import PAPER_FIELDS, NovelViewRenderer, RenderConfig, Rendered, SourceView
@@ -266,18 +266,18 @@ def flight():
 def scores(flight):
     camera, views, gt, t_wc = flight
     out = {}
-    for name, cfg in (
-        ('ours', RenderConfig()),
-        ('paper', RenderConfig.paper()),
-        ('soft', RenderConfig(blend='soft')),
-        ('splat', RenderConfig(renderer='splat')),
-        ('ulr', RenderConfig(renderer='ulr')),
-        ('no_lookup', RenderConfig(depth_lookup_steps=0)),
-        ('lookup_everywhere', RenderConfig(depth_lookup_min_fit_px=0.0)),
-        ('lookup_nowhere', RenderConfig(depth_lookup_min_fit_px=1e9)),
-        ('all_views', RenderConfig(ulr_blend_min_weight=0.0)),
+    for name, renderer in (
+        ('ours', NovelViewRenderer(views, RenderConfig())),
+        ('paper', NovelViewRenderer(views, RenderConfig.paper())),
+        ('soft', NovelViewRenderer(views, RenderConfig(blend='soft'))),
+        ('splat', SplatRenderer(views, RenderConfig())),
+        ('ulr', UlrRenderer(views, RenderConfig())),
+        ('no_lookup', NovelViewRenderer(views, RenderConfig(depth_lookup_steps=0))),
+        ('lookup_everywhere', NovelViewRenderer(views, RenderConfig(depth_lookup_min_fit_px=0.0))),
+        ('lookup_nowhere', NovelViewRenderer(views, RenderConfig(depth_lookup_min_fit_px=1e9))),
+        ('all_views', NovelViewRenderer(views, RenderConfig(ulr_blend_min_weight=0.0))),
     ):
-        r = NovelViewRenderer(views, cfg).render(t_wc, camera)
+        r = renderer.render(t_wc, camera)
         assert r.reason is None
         out[name] = (r, score(gt.rgb, r.rgb, r.valid))
     return out
@@ -520,8 +520,8 @@ def test_views_facing_away_are_ignored(flight) -> None:
     magenta = np.zeros_like(views[0].rgb)
     magenta[..., 0] = magenta[..., 2] = 255
     decoy = SourceView(magenta, views[0].depth, camera, away)
-    for renderer in ('ibr', 'splat', 'ulr'):
-        out = NovelViewRenderer([decoy, *views], RenderConfig(renderer=renderer)).render(t_wc, camera)
+    for renderer in (NovelViewRenderer, SplatRenderer, UlrRenderer):
+        out = renderer([decoy, *views], RenderConfig()).render(t_wc, camera)
         assert 0 not in out.used_views, renderer
         assert not np.any(out.source == 0), renderer
         assert out.valid.mean() > 0.95, renderer
@@ -539,7 +539,7 @@ def test_random_poses_and_odd_depth_never_crash(flight) -> None:
     odd_view = SourceView(views[0].rgb, odd, camera, views[0].t_wc)
     small = PinholeCamera.from_fov(64, 48, 100.0)
     renderers = [
-        NovelViewRenderer([odd_view, *views[1:]], RenderConfig(renderer=r)) for r in ('ibr', 'splat', 'ulr')
+        r([odd_view, *views[1:]], RenderConfig()) for r in (NovelViewRenderer, SplatRenderer, UlrRenderer)
     ]
     for _ in range(12):
         pose = matrix_from_rt(small_rotation(*rng.normal(0, 1.0, 3)), t_wc[:3, 3] + rng.normal(0, 40.0, 3))
