@@ -41,7 +41,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.geometry.camera import PinholeCamera
-from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
 from ibr_ros.jobs.warmup import warm_up_renderer
 from ibr_ros.node_config import INTRINSICS, VIEW_RENDERER
 from ibr_ros.nodes.common import (
@@ -178,14 +178,6 @@ class ViewRenderer(Node):
         )
 
     # -- queries --------------------------------------------------------------------------------
-    def _out_camera(self) -> PinholeCamera:
-        kf = self.latest_camera
-        if not (self.width or self.height or self.hfov):
-            return PinholeCamera(kf.width, kf.height, kf.k)
-        return PinholeCamera.from_fov(
-            self.width or kf.width, self.height or kf.height, self.hfov or kf.hfov_deg
-        )
-
     def _on_query_msg(self, msg: PoseStamped) -> None:
         """Answer the newest renderable query of those waiting (see module docstring)."""
         newest = self._check(msg)
@@ -230,7 +222,7 @@ class ViewRenderer(Node):
     def _answer(self, stamp: int, t_wc: np.ndarray, t0: float) -> None:
         """Render and publish the reply to the query ``stamp`` that arrived at ``t0`` (perf_counter)."""
         try:
-            camera = self._out_camera()
+            camera = output_camera(self.width, self.height, self.hfov, self.latest_camera)
             out = self.renderer.render(t_wc, camera)
         except BAD_MESSAGE as exc:
             self.unanswered('invalid_query', f'query {stamp} ns: {exc}')

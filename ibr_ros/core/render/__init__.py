@@ -29,6 +29,7 @@ from ibr_ros.core.render.renderer import (
     NovelViewRenderer,
     Rendered,
     SourceView,
+    output_camera,
 )
 from ibr_ros.core.render.superpixels import (
     SuperpixelStats,
@@ -64,6 +65,7 @@ __all__ = [
     'circumscribed_triangles',
     'intrinsics_vector',
     'lands_near',
+    'output_camera',
     'prepare_warp',
     'put_rgb',
     'raster_views',

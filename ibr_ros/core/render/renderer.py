@@ -110,9 +110,20 @@ from ibr_ros.core.render.raster import affine_maps, raster_views, row_spans
 from ibr_ros.core.render.superpixels import slic, split_at_depth_edges, superpixel_stats
 from ibr_ros.core.render.warp import WarpModel, prepare_warp, warp_superpixels
 
-__all__ = ['NovelViewRenderer', 'Rendered', 'SourceView']
+__all__ = ['NovelViewRenderer', 'Rendered', 'SourceView', 'output_camera']
 
 _DUMMY_RGB = np.zeros((1, 1, 3), np.uint8)
+
+
+def output_camera(width: int, height: int, hfov_deg: float, keyframe: PinholeCamera) -> PinholeCamera:
+    """The camera of the rendered views: ``width`` x ``height`` px with horizontal field of view
+    ``hfov_deg`` (degrees) and the principal point centred; each 0 takes ``keyframe``'s (the latest
+    keyframe's). All three 0: ``keyframe``'s own intrinsics, distortion dropped."""
+    if not (width or height or hfov_deg):
+        return PinholeCamera(keyframe.width, keyframe.height, keyframe.k)
+    return PinholeCamera.from_fov(
+        width or keyframe.width, height or keyframe.height, hfov_deg or keyframe.hfov_deg
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,7 +9,7 @@ import numpy as np
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.path import interpolate_path, path_stamps
-from ibr_ros.core.render import NovelViewRenderer, SourceView
+from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import _Configs
@@ -51,13 +51,7 @@ def _render_all(
         if (why := renderer.skip_reason(i)) is not None:
             unusable[str(k.stamp)] = why
     info['prepare_s'] = time.perf_counter() - t0
-    last = model[-1].camera
-    w, h, hfov = cfg.out_size
-    camera = (
-        PinholeCamera(last.width, last.height, last.k)
-        if not (w or h or hfov)
-        else PinholeCamera.from_fov(w or last.width, h or last.height, hfov or last.hfov_deg)
-    )
+    camera = output_camera(*cfg.out_size, model[-1].camera)
     poses = interpolate_path([k.t_wc for k in model], n_views)
     stamps = path_stamps([k.stamp for k in model], n_views)
     views = [NovelView(s, t) for s, t in zip(stamps, poses, strict=True)]
