@@ -8,7 +8,6 @@ import numpy as np
 from numba import njit, prange
 
 from ibr_ros.core.render.projection import refine_preimage
-from ibr_ros.core.render.raster import _pick
 
 __all__ = ['bilinear', 'blend_views', 'put_rgb']
 
@@ -54,49 +53,30 @@ def _same_surface(za, zb, tol):
 
 
 @njit(cache=True, parallel=True)
-def blend_views(
-    rgb0,
-    rgb1,
-    rgb2,
-    rgb3,
-    ids,
-    inv,
-    pen,
-    zk,
-    n,
-    view_ids,
-    tol,
-    n_blend,
-    sigma,
-    min_rel,
-    dep0,
-    dep1,
-    dep2,
-    dep3,
-    rel,
-    iters,
-    max_shift,
-    fit,
-    min_fit,
-    out_rgb,
-    out_valid,
-    out_src,
-    out_depth,
-):
-    """Blend the warped views per pixel (see the module docstring).
+def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, weights, lookup, out):
+    """Blend the ``n <= 4`` warped views per pixel (see :mod:`ibr_ros.core.render.renderer`).
 
-    ``rgb0..rgb3``: the source images of views 0..3 (``n <= 4``; unused ones are dummies);
-    ``ids[j]``: superpixel of view ``j`` drawn at each pixel (-1 none); ``inv[j, k]``: its inverse
-    affine map; ``pen[j, k]`` / ``zk[j, k]``: its angle penalty and depth. The best view (smallest
-    penalty) supplies ``out_src`` / ``out_depth``; the colour is the weighted mean over the
-    ``n_blend`` best views (1: the best alone, the paper): weights ``exp(-((p - p_min) / sigma)^2)``
-    (views with ``(p - p_min) / sigma > _SOFT_CUTOFF`` left out) for ``sigma > 0``, else ULR's
-    ``1 - p / p_max`` (``p_max`` the largest penalty among them; the best view always takes part,
-    views below ``min_rel`` times its weight are left out).
-    ``tol >= 0``: when a strict majority of the views agree on a depth (within a factor ``1 + tol``)
-    only they take part. ``iters > 0``: the colour lookups of superpixels with ``fit[j, k] >
-    min_fit`` are corrected by :func:`refine_preimage` (depths ``dep<j>``, ``rel[j]``, ``max_shift``).
+    ``rgbs`` / ``depths``: tuples of 4 same-typed arrays (views ``n..3`` repeat one of them), the
+    source images (uint8 ``(H, W, 3)``) and z-depths (m); ``ids[j]``: superpixel of view ``j`` drawn
+    at each pixel (-1 none); ``inv[j, k]``: its inverse affine map (novel -> source pixel);
+    ``pen[j, k]`` / ``zk[j, k]``: its penalty (degrees) and novel-view depth (m); ``fit[j, k]``: its
+    affine fit (RMS px); ``rel[j]``: view ``j``'s
+    :func:`~ibr_ros.core.render.projection.reprojection_params`; ``view_ids[j]``: its index in the
+    renderer. ``out = (rgb, valid, source, depth)`` receives :class:`Rendered`'s arrays.
+
+    The best view (smallest penalty) supplies ``source`` / ``depth``; the colour is the weighted
+    mean over the ``n_blend`` best views (1: the best alone, the paper), ``weights = (n_blend,
+    sigma, min_rel)``: weights ``exp(-((p - p_min) / sigma)^2)`` (views with ``(p - p_min) / sigma >
+    _SOFT_CUTOFF`` left out) for ``sigma > 0``, else ULR's ``1 - p / p_max`` (``p_max`` the largest
+    penalty among them; the best view always takes part, views below ``min_rel`` times its weight
+    are left out). ``tol >= 0``: when a strict majority of the views agree on a depth (within a
+    factor ``1 + tol``) only they take part. ``lookup = (iters, max_shift, min_fit)``: for
+    ``iters > 0`` the colour lookups of superpixels with ``fit[j, k] > min_fit`` are corrected by
+    :func:`~ibr_ros.core.render.projection.refine_preimage`.
     """
+    n_blend, sigma, min_rel = weights
+    iters, max_shift, min_fit = lookup
+    out_rgb, out_valid, out_src, out_depth = out
     h, w = out_valid.shape
     for y in prange(h):
         sel = np.empty(4, np.int64)
@@ -176,10 +156,10 @@ def blend_views(
                 v = inv[j, k, 1, 0] * x + inv[j, k, 1, 1] * y + inv[j, k, 1, 2]
                 if iters > 0 and fit[j, k] > min_fit:
                     u, v = refine_preimage(
-                        _pick(dep0, dep1, dep2, dep3, j), rel[j], x, y, u, v,
+                        depths[j], rel[j], x, y, u, v,
                         inv[j, k, 0, 0], inv[j, k, 0, 1], inv[j, k, 1, 0], inv[j, k, 1, 1], iters, max_shift,
                     )  # fmt: skip
-                cr, cg, cb = bilinear(_pick(rgb0, rgb1, rgb2, rgb3, j), u, v)
+                cr, cg, cb = bilinear(rgbs[j], u, v)
                 ar += wt * cr
                 ag += wt * cg
                 ab += wt * cb

@@ -114,16 +114,6 @@ def _span(ib, c, lo, hi, xs, xe):
 
 
 @njit(cache=True)
-def _pick(a, b, c, d, j):
-    """The ``j``-th of four same-typed arrays (numba cannot index a list of arrays cheaply)."""
-    if j == 0:
-        return a
-    if j == 1:
-        return b
-    return c if j == 2 else d
-
-
-@njit(cache=True)
 def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, depth, rel, thr2):
     """Rows ``r0..r1`` of :func:`raster_views` for one view."""
     for oi in range(order.size):
@@ -189,12 +179,15 @@ def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, de
 
 @njit(cache=True, parallel=True)
 def raster_views(
-    lab0, lab1, lab2, lab3, n, bbox, span_off, spans, order, order_off, inv, box, ids, n_bands,
-    dep0, dep1, dep2, dep3, rel, thr2,
-):  # fmt: skip
+    labels, depths, n, bbox, span_off, spans, order, order_off, inv, box, rel, thr2, ids, n_bands
+):
     """Draw the warped superpixels of ``n <= 4`` views front to back into their id buffers.
 
-    View ``j`` (labels ``lab<j>``, boxes ``bbox[j]``, row extents ``spans[span_off[j, k] + y - y0]``,
+    ``labels`` / ``depths``: tuples of 4 same-typed arrays (views ``n..3`` repeat one of them), the
+    superpixel labels and z-depths (m) of the source views; ``rel[j]``: view ``j``'s
+    :func:`~ibr_ros.core.render.projection.reprojection_params`; ``thr2``: squared coverage
+    threshold (px^2, < 0: off, see :func:`~ibr_ros.core.render.projection.lands_near`).
+    View ``j`` (labels ``labels[j]``, boxes ``bbox[j]``, row extents ``spans[span_off[j, k] + y - y0]``,
     inverse affine maps ``inv[j]``, destination boxes ``box[j]``) draws superpixels
     ``order[order_off[j]:order_off[j + 1]]`` (nearest first). ``ids[j]`` (-1 = free) gets the
     superpixel of every pixel that maps back onto one of that superpixel's own source pixels
@@ -209,7 +202,7 @@ def raster_views(
         r1 = (band + 1) * h // n_bands - 1
         for j in range(n):
             _raster_band(
-                _pick(lab0, lab1, lab2, lab3, j),
+                labels[j],
                 bbox[j],
                 span_off[j],
                 spans,
@@ -219,7 +212,7 @@ def raster_views(
                 ids[j],
                 r0,
                 r1,
-                _pick(dep0, dep1, dep2, dep3, j),
+                depths[j],
                 rel[j],
                 thr2,
             )

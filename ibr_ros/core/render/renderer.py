@@ -112,7 +112,16 @@ from ibr_ros.core.render.warp import WarpModel, prepare_warp, warp_superpixels
 
 __all__ = ['NovelViewRenderer', 'Rendered', 'SourceView', 'output_camera']
 
-_DUMMY_RGB = np.zeros((1, 1, 3), np.uint8)
+
+def _four(arrays: list[NDArray]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Per-view arrays of one dtype as the 4-tuple the kernels index at run time, which needs one
+    numba type: all C-contiguous with the same read-only flag (as they come, e.g. all read-only
+    message buffers), else C-contiguous writeable copies where needed. Views ``len(arrays)..3``
+    repeat the first."""
+    if not all(a.flags.c_contiguous and a.flags.writeable == arrays[0].flags.writeable for a in arrays):
+        arrays = [a if a.flags.c_contiguous and a.flags.writeable else np.array(a, order='C') for a in arrays]
+    same = [*arrays, *[arrays[0]] * (4 - len(arrays))]
+    return same[0], same[1], same[2], same[3]
 
 
 def output_camera(width: int, height: int, hfov_deg: float, keyframe: PinholeCamera) -> PinholeCamera:
@@ -492,7 +501,6 @@ class NovelViewRenderer:
         labels = [c.labels for _, c in chosen]
         if len({lab.dtype for lab in labels}) > 1:  # a view with > 32767 superpixels (rare)
             labels = [lab.astype(np.int32) for lab in labels]
-        labels += [labels[0]] * (4 - n)
         n_bands = 4 * numba.get_num_threads()
         spans = np.concatenate([c.spans for _, c in chosen])
         iters = cfg.depth_lookup_steps
@@ -507,19 +515,31 @@ class NovelViewRenderer:
             )
         else:
             deps, rel = [np.zeros((1, 1), np.float32)], np.zeros((n, 12))
-        deps += [deps[0]] * (4 - len(deps))
+        depths = _four(deps)
+        order = np.concatenate(orders)
         raster_views(
-            *labels, n, bbox, span_off, spans, np.concatenate(orders), order_off, inv, box, ids, n_bands,
-            *deps, rel, thr2,
-        )  # fmt: skip
-        out_rgb, valid, src, depth = self._alloc(camera)
-        rgbs = [self.views[i].rgb for i, _ in chosen] + [_DUMMY_RGB] * (4 - n)
+            _four(labels),
+            depths,
+            n,
+            bbox,
+            span_off,
+            spans,
+            order,
+            order_off,
+            inv,
+            box,
+            rel,
+            thr2,
+            ids,
+            n_bands,
+        )
+        out = self._alloc(camera)
         tol = -1.0 if cfg.depth_tolerance is None else float(cfg.depth_tolerance)
         view_ids = np.array([i for i, _ in chosen], np.int16)
         n_blend = 1 if cfg.blend == 'paper' else 4
         sigma = cfg.soft_sigma_deg if cfg.blend == 'soft' else -1.0  # < 0: ULR weights
-        blend_views(
-            *rgbs, ids, inv, pen, zk, n, view_ids, tol, n_blend, sigma, cfg.ulr_blend_min_weight, *deps, rel,
-            iters, cfg.depth_lookup_max_px, fit, cfg.depth_lookup_min_fit_px, out_rgb, valid, src, depth,
-        )  # fmt: skip
-        return Rendered(out_rgb, valid, src, depth, [i for i, _ in chosen], None, self.skipped_views)
+        weights = (n_blend, float(sigma), float(cfg.ulr_blend_min_weight))
+        lookup = (int(iters), float(cfg.depth_lookup_max_px), float(cfg.depth_lookup_min_fit_px))
+        rgbs = _four([self.views[i].rgb for i, _ in chosen])
+        blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, weights, lookup, out)
+        return Rendered(*out, [i for i, _ in chosen], None, self.skipped_views)

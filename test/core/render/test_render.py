@@ -338,8 +338,8 @@ def _blend_one_pixel(depths: list[float], tol: float | None) -> tuple[int, tuple
     )
     tol_arg = -1.0 if tol is None else tol
     blend_views(
-        *rgbs, ids, np.zeros((n, 1, 2, 3)), pen, zk, n, np.arange(n, dtype=np.int16), tol_arg,
-        4, -1.0, 0.0, *dep, np.zeros((n, 12)), 0, 1.0, np.zeros((n, 1)), 0.0, *out,
+        tuple(rgbs), tuple(dep), n, ids, np.zeros((n, 1, 2, 3)), pen, zk, np.zeros((n, 1)), np.zeros((n, 12)),
+        np.arange(n, dtype=np.int16), tol_arg, (4, -1.0, 0.0), (0, 1.0, 0.0), out,
     )  # fmt: skip
     return int(out[2][0, 0]), tuple(int(c) for c in out[0][0, 0])
 
@@ -549,3 +549,33 @@ def test_random_poses_and_odd_depth_never_crash(flight) -> None:
                 assert out.rgb.shape == (cam.height, cam.width, 3)
                 assert out.valid.any() == (out.reason is None)
                 assert np.all(out.source[out.valid] >= 0)
+
+
+def test_read_only_and_strided_source_arrays_render_the_same(flight, scores) -> None:
+    """Message buffers arrive read-only (rgb8 zero-copy views); the kernels take any mix of arrays."""
+    camera, views, _, t_wc = flight
+
+    def read_only(a: np.ndarray) -> np.ndarray:
+        b = a.copy()
+        b.setflags(write=False)
+        return b
+
+    def strided(a: np.ndarray) -> np.ndarray:
+        b = np.empty((a.shape[0], 2 * a.shape[1], *a.shape[2:]), a.dtype)[:, ::2]
+        b[...] = a
+        return b
+
+    ref = scores['ours'][0]
+    for wrap in ((read_only,) * 4, (read_only, strided, lambda a: a, read_only)):
+        mixed = [
+            SourceView(f(v.rgb), f(v.depth), v.camera, v.t_wc, name=v.name)
+            for f, v in zip(wrap, views, strict=True)
+        ]
+        out = NovelViewRenderer(mixed, RenderConfig()).render(t_wc, camera)
+        for a, b in (
+            (out.rgb, ref.rgb),
+            (out.valid, ref.valid),
+            (out.source, ref.source),
+            (out.depth, ref.depth),
+        ):
+            np.testing.assert_array_equal(a, b)
