@@ -1,93 +1,76 @@
 """Novel-view rendering from posed RGB-D source views (Liu et al. 2020, Sec. III-B).
 
 ``NovelViewRenderer(views, config).render(t_wc, camera)``: the paper's pipeline; the defaults add
-five steps (marked *added*) that :meth:`RenderConfig.as_paper` switches off.
+five steps (marked *added*) that :meth:`RenderConfig.as_paper` switches off. Conventions: poses are
+4x4 camera-to-world matrices (metres) of REP-103 optical frames (z forward, x right, y down),
+depths are z-depths in metres (REP-118: 0/NaN unknown, ``+inf`` sky), angles are degrees, image
+coordinates are pixels with pixel centres at integers; all cameras are undistorted pinholes
+(distortion ignored). Why the additions, and what they and the kernels cost: ``bench/README.md``
+(section Renderer).
 
 1. View selection: among the usable source views whose optical axis is within
    ``max_axis_angle_deg`` of the novel one (others face away and are ignored), the ``n_views``
-   (4, at most 4) with the nearest camera centres. Views without depth, with an invalid pose or
+   (at most 4) with the nearest camera centres. Views without depth, with an invalid pose or
    without a single warpable superpixel are skipped (``Rendered.skipped_views``).
 2. Per view (cached, see below): SLIC superpixels, their statistics and a
-   :class:`~ibr_ros.core.render.warp.WarpModel`. *Added* (``depth_split``): superpixels that straddle a
-   depth step of more than 2 % are split along it first
-   (:func:`~ibr_ros.core.render.superpixels.split_at_depth_edges`), so that no superpixel smears a roof
-   edge over the street below; 1500 SLIC superpixels become about 2600-4000. Per query every
-   superpixel is warped by the shape-preserving warp (:func:`~ibr_ros.core.render.warp.warp_superpixels`);
-   superpixels whose reprojected median depth (or any sample) is at ``z <= near`` are dropped (the
-   depth test of the paper), as are warps that flip the triangle or magnify it by more than
-   ``max_magnification`` (linear).
-3. Rasterisation of each warped triangle into a per-view superpixel-id image: every destination
-   pixel is mapped back through the inverse of the triangle's affine map and accepted only if it
-   lands (nearest pixel) on a pixel of that superpixel. Only destination pixels whose pre-image
-   lies in the superpixel's bounding box and in its column extent over the source rows crossed
-   are visited: they include every pixel that can pass the test, so the result is the same as
-   scanning the whole triangle. Superpixels are drawn front to back by their reprojected median
-   depth and a pixel keeps the first superpixel that claims it: a z-buffer at superpixel
-   granularity. *Added* (``coverage_px``): the source pixel under the pre-image, reprojected with
-   its own depth, must also land within 1 px of the destination pixel, so that a superpixel whose
-   affine warp overshoots a silhouette leaves those pixels to the surface behind it.
-4. Blending of the (up to 4) warped images, per pixel, from the angle penalty of Chaurasia et al.
-   2011: the angle at the superpixel's 3D anchor (centroid at median depth) between the ray from
-   the source centre and the ray from the novel centre, evaluated once per warped superpixel;
-   *added* (``resolution_weight_deg``): plus 40 degrees per unit of ULR's resolution term, so a
-   view much farther from the surface than the novel camera ranks lower. ``blend='paper'``: the
-   colour of the view with the smallest penalty (ties go to the nearer view). ``blend='ulr'``
-   (*added*, default): weights ``1 - p / p_max`` over the views covering the pixel (the worst of
-   them gets 0; the best always takes part), as in ULR; views whose weight is below
-   ``ulr_blend_min_weight`` (0.3) times the best view's are left out (fewer colour lookups).
-   ``blend='soft'``: weights ``exp(-((p - p_min) / soft_sigma_deg)^2)``. Colours are bilinear
-   lookups in the source image at the pre-image of the pixel, done only for the views that
-   contribute. *Added*
-   (``depth_tolerance``): the views covering the pixel vote on its surface: each view's superpixel
-   depth gets the votes of the views within a factor ``1 + tol`` (1.5) of it; when one depth has
-   a strict majority, only the views on it take part (else all do). So a view whose depth
-   misplaces a roof is outvoted instead of painting the street over it, and so is a single view
-   that puts a distant hill too near. Measured alternatives: "nearest surface wins" (ULR's rule)
-   raised the worst-1 % error of the ``ibr process`` path views on the shipped flight from 18.4 to
-   21.9 (bad distant depth), and letting the nearest surface win 2-2 ties cost 0.9 on the demo's.
-   Sky superpixels are warped by rotation only and get penalty 0 (so the
-   nearest view supplies the sky). *Added* (``depth_lookup_steps``, 2): in superpixels whose
-   affine warp misses its own reprojection samples by more than ``depth_lookup_min_fit_px``
-   (0.08 px RMS, :attr:`~ibr_ros.core.render.warp.WarpResult.fit_px`), the affine pre-image of each
-   pixel is corrected by Newton steps that reproject the source pixel at its own depth into the
-   novel view (by at most ``depth_lookup_max_px``, 1 px), so the colour comes from where the depth
-   map says rather than from the affine approximation: thin trunks and fine ground texture stay
-   sharp. The fit gate leaves out the superpixels (most of them) that the affine warp already
-   fits: at 960x540 the lookup costs 3 ms (43 against 40 ms per view with 4 sources), 28 ms when
-   done everywhere, for about the same quality.
-
-Why the additions (rephotography, 7x7 +-2 shiftable L1, worst 1 %, mean over holdouts; see
-``ibr eval rephoto`` and ``test/test_eval_rephoto.py``): on the shipped synthetic flight and seeds 1
-and 2, with refined (fused) depth the paper's renderer has 26.0 / 25.2 / 48.6, ULR 28.8 / 25.8 /
-46.0, the defaults 24.4 / 24.6 / 44.8; with ground-truth depth the paper's renderer 24.9 / 22.4 /
-28.3, ULR 20.24 / 19.5 / 23.9, the defaults 20.16 / 19.0 / 23.5 (20.50 / 19.3 / 23.7 without the
-depth lookup and with ``resolution_weight_deg`` 20). On seeds 3 and 4, never used while choosing
-the settings: fused 26.0 / 26.2 (ULR 26.3 / 30.4, paper 27.8 / 26.9), ground truth 21.2 / 19.2
-(ULR 21.7 / 19.6, paper 24.6 / 22.2). On the 16 path views of ``ibr process`` on the shipped flight
-(refined depth, against the exact frames, holes black): 18.6 (paper 18.7, ULR 26.3; 18.4 with
-``resolution_weight_deg`` 20). Not better everywhere: with the demo's parameters (25 keyframes
-refined with 2 MVS neighbours each, noisier depth) its 8 path views have 25.0 against the paper's
-23.7; the mean error is lower (5.31 against 5.58), but with poor depth the paper's single best
-view fails more gently.
+   :class:`~ibr_ros.core.render.warp.WarpModel`. *Added* (``depth_split``): superpixels that
+   straddle a depth step larger than ``depth_split`` (log depth) are split along it first
+   (:func:`~ibr_ros.core.render.superpixels.split_at_depth_edges`), so that no superpixel smears a
+   roof edge over the street below. Per query every superpixel is warped by the shape-preserving
+   warp (:func:`~ibr_ros.core.render.warp.warp_superpixels`); superpixels whose reprojected median
+   depth (or any sample) is at ``z <= near`` are dropped (the depth test of the paper), as are
+   warps that flip the triangle or magnify it by more than ``max_magnification`` (linear).
+3. Rasterisation (:func:`~ibr_ros.core.render.raster.raster_views`) of each warped triangle into a
+   per-view superpixel-id image: every destination pixel is mapped back through the inverse of the
+   triangle's affine map and accepted only if it lands (nearest pixel) on a pixel of that
+   superpixel. Only destination pixels whose pre-image lies in the superpixel's bounding box and in
+   its column extent over the source rows crossed are visited: they include every pixel that can
+   pass the test, so the result is the same as scanning the whole triangle. Superpixels are drawn
+   front to back by their reprojected median depth and a pixel keeps the first superpixel that
+   claims it: a z-buffer at superpixel granularity. *Added* (``coverage_px``): the source pixel
+   under the pre-image, reprojected with its own depth, must also land within ``coverage_px`` of
+   the destination pixel, so that a superpixel whose affine warp overshoots a silhouette leaves
+   those pixels to the surface behind it.
+4. Blending (:func:`~ibr_ros.core.render.blend.blend_views`) of the (up to 4) warped images, per
+   pixel, from the angle penalty of Chaurasia et al. 2011: the angle at the superpixel's 3D anchor
+   (centroid at median depth) between the ray from the source centre and the ray from the novel
+   centre, evaluated once per warped superpixel; *added* (``resolution_weight_deg``): plus that many
+   degrees per unit of ULR's resolution term, so a view much farther from the surface than the novel
+   camera ranks lower. ``blend='paper'``: the colour of the view with the smallest penalty (ties go
+   to the nearer view). ``blend='ulr'`` (*added*, default): weights ``1 - p / p_max`` over the views
+   covering the pixel (the worst of them gets 0; the best always takes part), as in ULR; views whose
+   weight is below ``ulr_blend_min_weight`` times the best view's are left out (fewer colour
+   lookups). ``blend='soft'``: weights ``exp(-((p - p_min) / soft_sigma_deg)^2)``. Colours are
+   bilinear lookups in the source image at the pre-image of the pixel, done only for the views that
+   contribute. *Added* (``depth_tolerance``): the views covering the pixel vote on its surface:
+   each view's superpixel depth gets the votes of the views within a factor ``1 + depth_tolerance``
+   of it; when one depth has a strict majority, only the views on it take part (else all do). So a
+   view whose depth misplaces a roof is outvoted instead of painting the street over it, and so is
+   a single view that puts a distant hill too near. Sky superpixels are warped by rotation only and
+   get penalty 0 (so the nearest view supplies the sky). *Added* (``depth_lookup_steps``): in
+   superpixels whose affine warp misses its own reprojection samples by more than
+   ``depth_lookup_min_fit_px`` (RMS, :attr:`~ibr_ros.core.render.warp.WarpResult.fit_px`), the
+   affine pre-image of each pixel is corrected by Newton steps that reproject the source pixel at
+   its own depth into the novel view (by at most ``depth_lookup_max_px``), so the colour comes from
+   where the depth map says rather than from the affine approximation: thin trunks and fine ground
+   texture stay sharp.
 
 The kernels run in parallel (numba threads): the warp over superpixels (one region per view), the
 rasterisation (all views at once) and the blend over bands of destination rows.
 
-Caching: the per-view data (int16 labels, boxes, per-row extents, warp model: about 2.7 MB at
-960x540 and 1500 superpixels; the source rgb and depth are referenced, not copied) is computed on
-first use (or by :meth:`NovelViewRenderer.prepare`) and kept in an LRU of ``max_cached_views``
-views.
+Caching: the per-view data (int16 labels, boxes, per-row extents, warp model; the source rgb and
+depth are referenced, not copied) is computed on first use (or by :meth:`NovelViewRenderer.prepare`)
+and kept in an LRU of ``max_cached_views`` views.
 
-Distance limit: ``max_distance_m``, by default ``far_factor`` (3) times the median scene depth of
-the views (the median of each view's median finite depth): a query farther than that from every
-usable view facing its direction is "far outside the capture".
+Distance limit: ``max_distance_m``, by default ``far_factor`` times the median scene depth of the
+views (the median of each view's median finite depth): a query farther than that from every usable
+view facing its direction is "far outside the capture".
 
 Bad input: a pose that is not a 4x4 numeric matrix, or a camera that is not a ``PinholeCamera``,
 raises ValueError (programming error). A 4x4 pose that is not a finite rigid transform (NaN,
 zero or non-orthonormal rotation, bad last row), a camera farther than the distance limit from
 every usable view, no view facing the query direction, or nothing visible give an all-invalid
-:class:`Rendered` with ``reason`` set. All cameras are undistorted pinholes (distortion ignored).
-Not thread-safe.
+:class:`Rendered` with ``reason`` set. Not thread-safe.
 """
 
 from __future__ import annotations
