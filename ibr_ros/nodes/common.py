@@ -34,8 +34,6 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 import msg_utils
 from ibr_ros.core.flight.stamps import StampAssembler
-from ibr_ros.core.geometry.camera import CameraError
-from ibr_ros.core.geometry.transforms import GeometryError
 from ibr_ros.errors import UserError
 from ibr_ros.node_config.table import Param, ParamTable, Value
 
@@ -58,8 +56,8 @@ __all__ = [
     'subscribe_field',
 ]
 
-#: What converting a malformed message raises (msg_utils, camera and pose validation).
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
+#: What converting a malformed message raises: :data:`msg_utils.CONVERSION_ERRORS` (the nodes' name).
+BAD_MESSAGE = msg_utils.CONVERSION_ERRORS
 
 #: Exit status of a node whose parameters are rejected at start-up.
 EXIT_BAD_CONFIG = 2

@@ -25,16 +25,12 @@ from ibr_ros.core.flight.keyframes import (
     select_keyframes_for_target,
 )
 from ibr_ros.core.flight.stamps import StampAssembler
-from ibr_ros.core.geometry.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry.transforms import GeometryError
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions, Progress
 from ibr_ros.jobs.process.params import _Configs
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
-
-
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 
 
 @dataclass
@@ -157,7 +153,7 @@ def _frames(
                 continue
             else:
                 value = (to_pose(msg), msg.header.frame_id or 'map')
-        except BAD_MESSAGE as exc:
+        except msg_utils.CONVERSION_ERRORS as exc:
             bad[field] += 1
             if field == 'image':
                 reading.image_ok.append(False)

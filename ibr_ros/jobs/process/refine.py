@@ -10,9 +10,10 @@ from ibr_ros.core.depth.mvs import MvsView, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError
 from ibr_ros.core.depth.schedule import RefineScheduler
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.process.frames import BAD_MESSAGE, Keyframe
+from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import _Configs
+from msg_utils import CONVERSION_ERRORS
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 
@@ -34,7 +35,7 @@ def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | N
     while True:
         try:
             job = scheduler.next_job(flush=cfg.flush)
-        except BAD_MESSAGE as exc:  # a degenerate keyframe set (e.g. coincident cameras)
+        except CONVERSION_ERRORS as exc:  # a degenerate keyframe set (e.g. coincident cameras)
             raise UserError(f'cannot choose MVS neighbours: {exc}') from exc
         for w in scheduler.pop_warnings():
             LOG.warning(w)
