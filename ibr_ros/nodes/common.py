@@ -23,6 +23,7 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (
     QoSDurabilityPolicy,
     QoSHistoryPolicy,
@@ -142,6 +143,9 @@ def _declare_param(node: Node, p: Param) -> object:
         desc.floating_point_range = [
             FloatingPointRange(from_value=float(p.range[0]), to_value=float(p.range[1]), step=0.0)
         ]
+    if p.kind == 'list' and not p.default:  # rclpy would type [] as a byte array: a string array
+        value = node.declare_parameter(p.name, Parameter.Type.STRING_ARRAY, desc).value
+        return list(p.default) if value is None else value
     return node.declare_parameter(p.name, p.default, desc).value
 
 

@@ -1,0 +1,191 @@
+"""The bag_player's parameter table and the configuration built from it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from ibr_ros.bag.playback import PlaybackPolicy, parse_remaps, parse_topic_qos
+from ibr_ros.errors import UserError
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+
+__all__ = ['BAG_PLAYER', 'BagPlayerConfig']
+
+
+@dataclass(frozen=True)
+class BagPlayerConfig:
+    """What the bag_player node runs with (see :data:`BAG_PLAYER` for each parameter).
+
+    ``bag`` is '' when not given (the node refuses to start). ``clock_period_s`` = 1 / ``clock_rate_hz``;
+    ``linger_s`` -1 = until shut down; ``wait_timeout_s``, ``progress_s`` and ``duration_s`` 0 = off.
+    """
+
+    bag: str
+    playback: PlaybackPolicy
+    rate: float
+    loop: bool
+    start_offset_s: float
+    duration_s: float
+    publish_clock: bool
+    clock_period_s: float
+    wait_for_subscribers: int
+    wait_timeout_s: float
+    wait_topics: tuple[str, ...]
+    flow_window: int
+    linger_s: float
+    ack_timeout_s: float
+    progress_s: float
+
+
+def _strings(v: Mapping[str, Value], name: str) -> tuple[str, ...]:
+    return tuple(str(x) for x in v[name])  # type: ignore[union-attr]  # a list parameter
+
+
+def _build(v: Mapping[str, Value]) -> BagPlayerConfig:
+    try:
+        remap = parse_remaps(_strings(v, 'remap'))
+        overrides = parse_topic_qos(_strings(v, 'topic_qos'))
+    except ValueError as exc:  # the text names the parameter and the entry
+        raise UserError(str(exc)) from exc
+    rate = float(v['rate'])  # type: ignore[arg-type]
+    window = int(v['flow_window'])  # type: ignore[arg-type]
+    return BagPlayerConfig(
+        bag=str(v['bag']),
+        playback=PlaybackPolicy(
+            topics=_strings(v, 'topics'),
+            remap=remap,
+            topic_qos=overrides,
+            qos_depth=int(v['qos_depth']),  # type: ignore[arg-type]
+            max_durable_depth=int(v['max_durable_depth']),  # type: ignore[arg-type]
+            use_recorded_qos=bool(v['use_recorded_qos']),
+            rate=rate,
+            flow_window=window,
+        ),
+        rate=rate,
+        loop=bool(v['loop']),
+        start_offset_s=float(v['start_offset']),  # type: ignore[arg-type]
+        duration_s=float(v['duration']),  # type: ignore[arg-type]
+        publish_clock=bool(v['publish_clock']),
+        clock_period_s=1.0 / float(v['clock_rate_hz']),  # type: ignore[arg-type]
+        wait_for_subscribers=int(v['wait_for_subscribers']),  # type: ignore[arg-type]
+        wait_timeout_s=float(v['wait_timeout_s']),  # type: ignore[arg-type]
+        wait_topics=_strings(v, 'wait_topics'),
+        flow_window=window,
+        linger_s=float(v['linger_s']),  # type: ignore[arg-type]
+        ack_timeout_s=float(v['ack_timeout_s']),  # type: ignore[arg-type]
+        progress_s=float(v['progress_s']),  # type: ignore[arg-type]
+    )
+
+
+_BIG = (0.0, 1e9)
+
+BAG_PLAYER: ParamTable[BagPlayerConfig] = ParamTable(
+    node='bag_player',
+    summary=(
+        'Replays a bag (rosbag2 directory, `.mcap`, `.db3` or ROS 1 `.bag`, converted to ROS 2 CDR) with '
+        "its original message types and publishes `/clock`. Every message's serialised bytes go out "
+        'unchanged on its bag topic (after `remap`), paced on the wall clock (bag time since '
+        '`start_offset` / `rate`; 0 = as fast as possible, at most `flow_window` unacknowledged '
+        'messages per topic). Topics without an installed Python message class, not Jazzy CDR or '
+        'defined differently from Jazzy are skipped with a warning; payloads that do not decode as their '
+        'type are never published: counted by reason (`empty`, `encapsulation`, `corrupt`), logged and '
+        'summed up at the end. QoS per topic: reliable volatile with `qos_depth`, or what the bag records '
+        'its publishers offered (`use_recorded_qos`: transient local with the history of the topic, at '
+        'most `max_durable_depth`), or `topic_qos`. Exits 0 when the bag is done (unless `loop`), after '
+        'reliable subscribers acknowledged everything or `ack_timeout_s`; a bag or parameter that cannot '
+        'be used is one error line and exit code 2.'
+    ),
+    params=(
+        Param(
+            'bag',
+            '',
+            'bag to replay: rosbag2 directory, .mcap, .db3 or ROS 1 .bag file; must be given',
+            comment='e.g. -p bag:=PATH',
+        ),
+        Param('rate', 1.0, 'playback speed factor; 0 = as fast as possible', _BIG),
+        Param('loop', False, 'start again at the end instead of exiting'),
+        Param('start_offset', 0.0, 'skip this many seconds at the start of the bag', _BIG),
+        Param('duration', 0.0, 'play this many seconds of the bag; 0 = to the end', _BIG),
+        Param(
+            'topics',
+            [],
+            'bag topics to play; empty = all',
+            comment="e.g. ['/camera/image_raw/compressed']",
+        ),
+        Param(
+            'remap',
+            [],
+            "renames of bag topics, 'from:=to'",
+            comment="""e.g. ['/camera/pose:=camera/pose'] (quote it: -p "remap:=[...]")""",
+        ),
+        Param('publish_clock', True, "publish the playback's bag time on /clock (for use_sim_time nodes)"),
+        Param('clock_rate_hz', 100.0, '/clock messages per wall-clock second', (0.1, 1e4)),
+        Param(
+            'wait_for_subscribers',
+            0,
+            'start once every played topic (or each of wait_topics) has this many subscriptions',
+            (0, 1000),
+        ),
+        Param('wait_timeout_s', 30.0, '... or after this many seconds anyway; 0 = wait forever', _BIG),
+        Param('wait_topics', [], 'the topics (published names) to wait for; empty = every played topic'),
+        Param(
+            'qos_depth',
+            100,
+            'history depth of the volatile publishers: a few seconds of each topic',
+            (1, 1000000),
+            comment='DDS repairs what a reliable subscriber missed (within a heartbeat period, 3 s with '
+            'Fast DDS) as long as the publisher still holds it.',
+        ),
+        Param(
+            'flow_window',
+            8,
+            'rate 0: at most this many unacknowledged messages per topic (flow control)',
+            (1, 1000000),
+        ),
+        Param(
+            'use_recorded_qos',
+            True,
+            "offer the QoS the bag records its publishers offered (rosbag2's offered_qos_profiles)",
+            comment='Transient local where they offered it, with a history of the recorded depth or the '
+            "topic's message count if larger; recorded best effort is played reliable; publishers that "
+            'offered different reliability or durability fall back to the default, as in ros2 bag play.',
+        ),
+        Param('max_durable_depth', 1000, 'largest history of a transient-local topic', (1, 1000000)),
+        Param(
+            'topic_qos',
+            [],
+            "QoS of bag topics, 'TOPIC:=POLICY[,POLICY...]'",
+            comment='Policies: reliable, best_effort, volatile, transient_local, depth=N; e.g. '
+            "['/keyframes/image:=transient_local,depth=50'].",
+        ),
+        Param(
+            'linger_s',
+            0.0,
+            'keep the publishers (and their transient-local history) this long after the end (s); '
+            '-1 = until shut down',
+            (-1.0, 1e9),
+        ),
+        Param(
+            'ack_timeout_s',
+            10.0,
+            'longest wait for reliable subscribers to acknowledge (rate 0, and at the end)',
+            _BIG,
+        ),
+        Param('progress_s', 5.0, 'progress log period in seconds; 0 = off', _BIG),
+    ),
+    build=_build,
+    publishes=(
+        Topic(
+            '(the bag topics)',
+            '(as recorded)',
+            "each bag topic after `remap`, the bag's serialised messages unchanged",
+            'reliable; transient local where recorded so',
+        ),
+        Topic(
+            '/clock',
+            'rosgraph_msgs/Clock',
+            "the playback's bag time at `clock_rate_hz`, never ahead of the next message",
+            'reliable',
+        ),
+    ),
+)
