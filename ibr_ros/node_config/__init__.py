@@ -8,15 +8,18 @@ sfm_mode must be 'auto', 'always' or 'off', got 'sometimes'``.
 from __future__ import annotations
 
 from ibr_ros.node_config.bag_player import BAG_PLAYER, BagPlayerConfig
+from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
 from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
 from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER, ViewRendererConfig, render_config
 
 __all__ = [
     'BAG_PLAYER',
+    'FRAME_SUBSAMPLER',
     'INTRINSICS',
     'TABLES',
     'VIEW_RENDERER',
     'BagPlayerConfig',
+    'FrameSubsamplerConfig',
     'Param',
     'ParamTable',
     'Topic',
@@ -26,4 +29,4 @@ __all__ = [
 ]
 
 #: Every node's table, by node name, in the order data flows through the graph.
-TABLES: dict[str, ParamTable[object]] = {t.node: t for t in (BAG_PLAYER, VIEW_RENDERER)}
+TABLES: dict[str, ParamTable[object]] = {t.node: t for t in (BAG_PLAYER, FRAME_SUBSAMPLER, VIEW_RENDERER)}

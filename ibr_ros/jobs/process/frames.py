@@ -118,7 +118,7 @@ def _frames(
         LOG.debug(detail)
 
     fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
-    assembler = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
+    assembler = StampAssembler(fields, cfg.subsampler.max_pending, incomplete, supersede=True)
     to_pose = (
         msg_utils.odometry_to_matrix if topics['pose_type'] == ODOMETRY else msg_utils.pose_stamped_to_matrix
     )
@@ -200,14 +200,14 @@ def _select_topics(
     no_pose = 'no pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry; --pose-topic)'
     if o.sfm:
         why: str | None = '--sfm'
-    elif cfg.pose_source == 'none':
+    elif cfg.subsampler.pose_source == 'none':
         why = "frame_subsampler pose_source 'none'"
     elif sel.pose is None and cfg.sfm_mode == 'off':
         raise UserError(
             f'{no_pose} and depth_refiner sfm_mode is off: frames without poses are not refined '
             f'(sfm_mode auto or --sfm registers them with SfM); {where}'
         )
-    elif sel.pose is None and cfg.pose_source == 'topic':
+    elif sel.pose is None and cfg.subsampler.pose_source == 'topic':
         raise UserError(
             f"{no_pose} and frame_subsampler pose_source is 'topic': it never selects keyframes without "
             f"poses (set it to 'auto' or pass --sfm); {where}"
@@ -232,6 +232,7 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
     mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
     :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the whole flight instead (two passes).
     """
+    fs = cfg.subsampler
     decisions: Counter = Counter()
     keyframes: list[Keyframe] = []
     reading = _Reading()
@@ -256,14 +257,14 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
         topics, sfm_why = _select_topics(reader, o, cfg)
         poseless = topics['pose'] is None or o.sfm
         frames = _frames(reader, topics, cfg, poseless, reading, progress)
-        scene_depth = cfg.subsampler_scene_depth or None
+        scene_depth = fs.scene_depth_m or None
         if poseless:
-            if cfg.target_keyframes:
+            if fs.target_keyframes:
                 LOG.warning(
-                    'target_keyframes %d ignored: keyframes chosen without poses', cfg.target_keyframes
+                    'target_keyframes %d ignored: keyframes chosen without poses', fs.target_keyframes
                 )
-            selection: dict[str, object] = {'method': 'interval', 'interval_s': cfg.poseless_interval_s}
-            interval = IntervalSelector(cfg.poseless_interval_s, cfg.keyframes)
+            selection: dict[str, object] = {'method': 'interval', 'interval_s': fs.poseless_interval_s}
+            interval = IntervalSelector(fs.poseless_interval_s, fs.keyframes)
             for f in frames:
                 for _, chosen in interval.push(f.stamp, blur_score(f.image), f):  # type: ignore[arg-type]
                     stopped = stopped or keep(chosen, 'sharpest of its window')
@@ -278,13 +279,13 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
             for k in keyframes:  # poses read after the frame's image
                 if k.bag_t_wc is None and k.stamp in reading.bag_poses:
                     k.bag_t_wc = reading.bag_poses[k.stamp]
-        elif cfg.target_keyframes:
+        elif fs.target_keyframes:
             # First pass: stamps, poses and blur scores of every frame; the images are not kept.
             seen = [(f.stamp, f.pose[0], blur_score(f.image)) for f in frames]  # type: ignore[index, arg-type]
             t0 = time.perf_counter()
             chosen = select_keyframes_for_target(
                 [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
-                target=cfg.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=cfg.keyframes,
+                target=fs.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=fs.keyframes,
             ) if seen else TargetSelection([], 1.0, [])  # fmt: skip
             picked, scale, decided = chosen.indices, chosen.scale, chosen.decisions
             decisions.update(d.reason for d in decided)
@@ -293,12 +294,12 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
                 picked, stopped = picked[: o.max_keyframes], True
             selection = {
                 'method': 'select_keyframes',
-                'target': cfg.target_keyframes,
+                'target': fs.target_keyframes,
                 'frames': len(seen),
                 'selected': len(reasons),
                 'scale': scale,
-                'baseline_ratio': cfg.keyframes.baseline_ratio * scale,
-                'min_baseline_m': cfg.keyframes.min_baseline_m * scale,
+                'baseline_ratio': fs.keyframes.baseline_ratio * scale,
+                'min_baseline_m': fs.keyframes.min_baseline_m * scale,
                 'scene_depth_m': scene_depth,
                 'seconds': time.perf_counter() - t0,
             }
@@ -318,7 +319,7 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
                 )
         else:
             selection = {'method': 'streaming'}
-            selector = KeyframeSelector(cfg.keyframes)
+            selector = KeyframeSelector(fs.keyframes)
             for f in frames:
                 d = selector.decide(f.stamp, f.pose[0], blur_score(f.image), scene_depth)  # type: ignore[index, arg-type]
                 decisions[d.reason] += 1

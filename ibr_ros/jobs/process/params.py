@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TypeVar
 
@@ -14,13 +14,11 @@ import yaml
 from ibr_ros.core.depth.mvs import MvsOptions
 from ibr_ros.core.depth.refine import RefinerConfig
 from ibr_ros.core.depth.schedule import ScheduleConfig, parse_depth_range
-from ibr_ros.core.flight.keyframes import KeyframeConfig
-from ibr_ros.core.flight.status import POSE_MODES
 from ibr_ros.core.registration.sfm_session import ScaleHint
 from ibr_ros.core.render.renderer import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.node_config import VIEW_RENDERER
+from ibr_ros.node_config import FRAME_SUBSAMPLER, VIEW_RENDERER, FrameSubsamplerConfig
 from ibr_ros.node_config.depth_refiner import refiner_config, sfm_settings
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
@@ -134,10 +132,8 @@ def load_params(params_file: Path | None = None, config: Path | None = None) -> 
 
 @dataclass(frozen=True)
 class _Configs:
-    keyframes: KeyframeConfig
-    subsampler_scene_depth: float
-    target_keyframes: int  # 0 = off (the streaming selector)
-    max_pending: int
+    # target_keyframes: ProcessOptions' when given; 0 = the streaming selector
+    subsampler: FrameSubsamplerConfig
     schedule: ScheduleConfig
     flush: bool
     refiner: RefinerConfig
@@ -145,8 +141,6 @@ class _Configs:
     out_size: tuple[int, int, float]  # width, height, hfov_deg; 0 = the last keyframe's
     min_valid: float
     view_frame: str
-    pose_source: str
-    poseless_interval_s: float
     sfm_mode: str
     sfm_min_keyframes: int
     sfm_max_side: int
@@ -157,12 +151,7 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
     """The core configurations, mapped from the node parameters exactly as the nodes map them."""
     fs, dr, vr = (params[n] for n in NODES)
     try:
-        kf = KeyframeConfig(
-            **{k: float(fs[k]) for k in ('baseline_ratio', 'min_baseline_m', 'max_rotation_deg')},
-            max_interval_s=float(fs['max_interval_s']),
-            min_interval_s=float(fs['min_interval_s']),
-            blur_ratio=float(fs['blur_ratio']),
-        )
+        subsampler = FRAME_SUBSAMPLER.config(fs, where='frame_subsampler.')
         mvs = MvsOptions(max_neighbours=int(dr['max_neighbours']))
         schedule = ScheduleConfig(
             min_neighbours=int(dr['min_neighbours']),
@@ -176,14 +165,9 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         scale_hint = _named(
             'depth_refiner', sfm_settings, sfm_mode, str(dr['sfm_scale']), float(dr['sfm_scale_m'])
         )
-        pose_source = str(fs['pose_source'])
-        if pose_source not in POSE_MODES:
-            raise UserError(
-                f'frame_subsampler pose_source must be one of {", ".join(POSE_MODES)}, got {pose_source!r}'
-            )
-        poseless_interval_s = float(fs['poseless_interval_s'])
         sfm_min_keyframes = int(dr['sfm_min_keyframes'])
         sfm_max_side = int(dr['sfm_max_side'])
+        poseless_interval_s = subsampler.poseless_interval_s
         if poseless_interval_s <= 0 or sfm_min_keyframes < 3 or sfm_max_side < 0:
             raise UserError(
                 'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
@@ -202,14 +186,11 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
     )
     if size[0] < 0 or size[1] < 0 or not 0 <= size[2] < 180:
         raise UserError(f'novel view size {size[0]}x{size[1]}, hfov {size[2]} deg: need >= 0 and hfov < 180')
-    target = int(fs['target_keyframes']) if o.target_keyframes is None else o.target_keyframes
+    target = subsampler.target_keyframes if o.target_keyframes is None else o.target_keyframes
     if target < 0:
         raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
     return _Configs(
-        keyframes=kf,
-        subsampler_scene_depth=float(fs['scene_depth_m']),
-        target_keyframes=target,
-        max_pending=int(fs['max_pending']),
+        subsampler=replace(subsampler, target_keyframes=target),
         schedule=schedule,
         flush=True,  # offline the flight has ended: as live once keyframes/status says so
         refiner=refiner,
@@ -217,8 +198,6 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
         out_size=size,
         min_valid=float(vr['min_valid_fraction']),
         view_frame=str(vr['frame_id']),
-        pose_source=pose_source,
-        poseless_interval_s=poseless_interval_s,
         sfm_mode=sfm_mode,
         sfm_min_keyframes=sfm_min_keyframes,
         sfm_max_side=sfm_max_side,
