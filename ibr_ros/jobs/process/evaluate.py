@@ -79,7 +79,7 @@ def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, obje
     }
 
 
-def _evaluate(
+def evaluate_ground_truth(
     bag: Path,
     keyframes: list[Keyframe],
     views: list[NovelView],

@@ -28,7 +28,7 @@ from ibr_ros.core.flight.stamps import StampAssembler
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions, Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 
@@ -55,7 +55,9 @@ class Keyframe:
 
 
 @dataclass
-class _Subsampled:
+class Subsampled:
+    """The keyframes :func:`subsample` chose, with what it read and counted on the way."""
+
     keyframes: list[Keyframe]
     counts: Counter
     bad: Counter
@@ -95,7 +97,7 @@ class _Reading:
 def _frames(
     reader: BagReader,
     topics: dict[str, str | None],
-    cfg: _Configs,
+    cfg: ProcessConfigs,
     poseless: bool,
     reading: _Reading,
     progress: Progress | None,
@@ -176,7 +178,7 @@ def _frames(
 
 
 def _select_topics(
-    reader: BagReader, o: ProcessOptions, cfg: _Configs
+    reader: BagReader, o: ProcessOptions, cfg: ProcessConfigs
 ) -> tuple[dict[str, str | None], str | None]:
     """Image, camera_info, pose and NavSatFix topics (given or detected by type) and their types, and
     why SfM mode is used (None: it is not).
@@ -227,7 +229,7 @@ def _select_topics(
     return out, why
 
 
-def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress | None) -> _Subsampled:
+def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progress | None) -> Subsampled:
     """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
     mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
     :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the whole flight instead (two passes).
@@ -342,6 +344,6 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
             why = f'no keyframe among {counts["frames"]} frames ({dict(decisions)})'
         names = ', '.join(str(topics[k]) for k in needed if topics[k] is not None)
         raise UserError(f'{bag}: {why} (topics {names})')
-    return _Subsampled(
+    return Subsampled(
         keyframes, counts, bad, decisions, topics, sfm_why, poseless, reading.fixes, stopped, selection
     )

@@ -131,7 +131,9 @@ def load_params(params_file: Path | None = None, config: Path | None = None) -> 
 
 
 @dataclass(frozen=True)
-class _Configs:
+class ProcessConfigs:
+    """The core configurations of one ``ibr process`` run, built from the node parameters."""
+
     # target_keyframes: ProcessOptions' when given; 0 = the streaming selector
     subsampler: FrameSubsamplerConfig
     schedule: ScheduleConfig
@@ -147,7 +149,7 @@ class _Configs:
     sfm_scale: ScaleHint | None
 
 
-def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Configs:
+def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> ProcessConfigs:
     """The core configurations, mapped from the node parameters exactly as the nodes map them."""
     fs, dr, vr = (params[n] for n in NODES)
     try:
@@ -189,7 +191,7 @@ def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Config
     target = subsampler.target_keyframes if o.target_keyframes is None else o.target_keyframes
     if target < 0:
         raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
-    return _Configs(
+    return ProcessConfigs(
         subsampler=replace(subsampler, target_keyframes=target),
         schedule=schedule,
         flush=True,  # offline the flight has ended: as live once keyframes/status says so

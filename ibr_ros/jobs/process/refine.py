@@ -12,13 +12,15 @@ from ibr_ros.core.depth.schedule import RefineScheduler
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 from msg_utils import CONVERSION_ERRORS
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 
 
-def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | None) -> dict[str, object]:
+def refine_all(
+    keyframes: list[Keyframe], cfg: ProcessConfigs, progress: Progress | None
+) -> dict[str, object]:
     """MVS + refinement of every keyframe, oldest first, with the whole flight known."""
     by_stamp = {k.stamp: k for k in keyframes}
     scheduler = RefineScheduler(cfg.schedule)

@@ -12,7 +12,7 @@ from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
 from ibr_ros.jobs.demo import interpolate_path, path_pairs
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 
 
 @dataclass
@@ -33,8 +33,8 @@ def _path_stamps(stamps: list[int], n: int) -> list[int]:
     return [(stamps[i] + stamps[i + 1]) // 2 for i in path_pairs(len(stamps), n)]
 
 
-def _render_all(
-    keyframes: list[Keyframe], cfg: _Configs, n_views: int, progress: Progress | None
+def render_all(
+    keyframes: list[Keyframe], cfg: ProcessConfigs, n_views: int, progress: Progress | None
 ) -> tuple[list[NovelView], dict[str, object]]:
     """The view_renderer's model of the refined keyframes and its replies to the path queries."""
     model = [k for k in keyframes if k.depth is not None]

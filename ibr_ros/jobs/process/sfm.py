@@ -14,9 +14,9 @@ from ibr_ros.core.geometry.undistort import undistort_image
 from ibr_ros.core.registration.sfm import SfmError, SfmOptions
 from ibr_ros.core.registration.sfm_session import SfmSession, SfmUpdate
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.process.frames import Keyframe, _Subsampled
+from ibr_ros.jobs.process.frames import Keyframe, Subsampled
 from ibr_ros.jobs.process.options import Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.register_bag import fixes_to_enu
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
@@ -45,9 +45,9 @@ def _sparse_depth(u: SfmUpdate, stamps: list[int]) -> float | None:
     return float(np.median(per_view)) if per_view else None
 
 
-def _register(
-    sub: _Subsampled, cfg: _Configs, threads: int | None, progress: Progress | None
-) -> tuple[list[Keyframe], _Configs, dict[str, object]]:
+def register_keyframes(
+    sub: Subsampled, cfg: ProcessConfigs, threads: int | None, progress: Progress | None
+) -> tuple[list[Keyframe], ProcessConfigs, dict[str, object]]:
     """SfM mode: register all keyframes with ONE :meth:`SfmSession.update`; the registered keyframes
     (undistorted, with SfM's camera and pose), the configurations to refine them with, and the stats.
     """
