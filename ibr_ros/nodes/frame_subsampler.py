@@ -57,9 +57,8 @@ class FrameSubsampler(Node):
         self.pose_source = PoseSource(cfg.pose_source)
         self.poseless_interval = cfg.poseless_interval_s
         self.config = cfg.keyframes
-        self.decide_depth = (
-            cfg.scene_depth_m or None
-        )  # the baseline rule's scene depth (None: min_baseline_m)
+        self.scene_depth = cfg.scene_depth_m  # 0 = unknown
+        self.decide_depth = self.scene_depth or None  # what the baseline rule uses (None: min_baseline_m)
         self.baseline = target_baseline(cfg.target_keyframes, cfg.expected_path_m)  # ValueError names them
         if self.baseline is not None:
             self.config = replace(self.config, min_baseline_m=self.baseline)
