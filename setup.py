@@ -48,7 +48,7 @@ setup(
     package_data={PACKAGE: ['models/*.onnx', 'models/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
-        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}', ['package.xml', 'LICENSE']),
         (f'share/{PACKAGE}/config', glob('config/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
         (f'lib/{PACKAGE}', _launchers()),
@@ -61,6 +61,7 @@ setup(
     maintainer_email='ibr-ros@example.com',
     description='Image-based rendering for drone captures as a ROS 2 node graph.',
     license='BSD-3-Clause',
+    license_files=['LICENSE'],
     python_requires='>=3.10',
     entry_points={'console_scripts': [f'{n} = {PACKAGE}.launch_entry:main' for n in sorted(SCRIPTS)]},
 )
