@@ -24,6 +24,8 @@ LAUNCHER = """#!/bin/sh
 prefix=$(CDPATH= cd -- "$(dirname -- "$0")/../.." && pwd)
 py=python3
 [ -x "$prefix/bin/python3" ] && py="$prefix/bin/python3"
+# Safe path (Python >= 3.11): import the installed package, not a checkout in the working directory.
+export PYTHONSAFEPATH=1
 exec "$py" -m {package}.launch_entry {name} "$@"
 """
 
