@@ -156,7 +156,7 @@ class ParamTable(Generic[C]):
             try:
                 param = self[name]
             except KeyError:
-                raise UserError(f'{where}{name!r} is not a parameter of {self.node}') from None
+                raise UserError(f'{name!r} is not a parameter of {self.node}') from None
             out[name] = param.check(value, where)
         return out
 

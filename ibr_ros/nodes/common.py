@@ -31,6 +31,7 @@ from rclpy.qos import (
     QoSReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 import msg_utils
@@ -114,8 +115,9 @@ def declare(
     *,
     read_only: bool = True,
     limits: tuple[float, float] | None = None,
-) -> object:
-    """Declare a parameter with a descriptor (a numeric range when ``limits`` is given); return its value."""
+) -> Any:
+    """Declare a parameter with a descriptor (a numeric range when ``limits`` is given); return its value
+    (of the default's type: rclpy refuses another)."""
     desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
     if limits is not None and isinstance(default, bool):
         raise ValueError(f'parameter {name}: limits make no sense for a bool')
@@ -182,7 +184,7 @@ def subscribe_field(
     convert: Callable[[Any], Any],
     put: Callable[[int, str, Any], None],
     bad: BadInput,
-) -> object:
+) -> Subscription:
     """Subscribe ``topic``; each message goes through ``convert`` and on to ``put(stamp_ns, field, value)``.
 
     A message that ``convert`` rejects (:data:`BAD_MESSAGE`) is counted and logged by ``bad`` under
