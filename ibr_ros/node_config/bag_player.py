@@ -82,18 +82,11 @@ _BIG = (0.0, 1e9)
 BAG_PLAYER: ParamTable[BagPlayerConfig] = ParamTable(
     node='bag_player',
     summary=(
-        'Replays a bag (rosbag2 directory, `.mcap`, `.db3` or ROS 1 `.bag`, converted to ROS 2 CDR) with '
-        "its original message types and publishes `/clock`. Every message's serialised bytes go out "
-        'unchanged on its bag topic (after `remap`), paced on the wall clock (bag time since '
-        '`start_offset` / `rate`; 0 = as fast as possible, at most `flow_window` unacknowledged '
-        'messages per topic). Topics without an installed Python message class, not Jazzy CDR or '
-        'defined differently from Jazzy are skipped with a warning; payloads that do not decode as their '
-        'type are never published: counted by reason (`empty`, `encapsulation`, `corrupt`), logged and '
-        'summed up at the end. QoS per topic: reliable volatile with `qos_depth`, or what the bag records '
-        'its publishers offered (`use_recorded_qos`: transient local with the history of the topic, at '
-        'most `max_durable_depth`), or `topic_qos`. Exits 0 when the bag is done (unless `loop`), after '
-        'reliable subscribers acknowledged everything or `ack_timeout_s`; a bag or parameter that cannot '
-        'be used is one error line and exit code 2.'
+        'Replays a bag (rosbag2 directory, `.mcap`, `.db3` or ROS 1 `.bag`) with its original message '
+        'types, paced by `rate`, and publishes `/clock`. Topics that cannot be replayed as ROS 2 Jazzy CDR '
+        'and payloads that do not decode are skipped (counted, logged); QoS follows what the bag recorded '
+        '(`use_recorded_qos`) or `topic_qos`. Exits 0 when the bag is done, 2 when the bag or a parameter '
+        'cannot be used.'
     ),
     params=(
         Param(

@@ -70,16 +70,10 @@ _INPUT = 'reliable keep-all if all its publishers offer reliable, else best effo
 FRAME_SUBSAMPLER: ParamTable[FrameSubsamplerConfig] = ParamTable(
     node='frame_subsampler',
     summary=(
-        'Picks sharp, well-spaced keyframes from a camera stream. A sharp frame (blur score at least '
-        '`blur_ratio` x the recent median) becomes a keyframe when the camera moved `baseline_ratio` x '
-        '`scene_depth_m` (`min_baseline_m` when the depth is unknown) from the last keyframe, turned '
-        '`max_rotation_deg` or after `max_interval_s`; live, `target_keyframes` over `expected_path_m` '
-        'replaces the baseline rule with ONE baseline of `expected_path_m / target_keyframes` metres. '
-        'Inputs are subscribed once their topic has a publisher; messages of one frame are matched by '
-        'identical header stamps. Without poses (`pose_source`; `auto` decides when the first frame is '
-        'complete whether `camera/pose` has a publisher, and the decision holds for the flight) the '
-        'sharpest unblurred frame of every `poseless_interval_s` window is a keyframe, published '
-        'without `keyframes/pose` (the depth_refiner registers them with SfM).'
+        'Picks sharp, well-spaced keyframes from a camera stream: a sharp frame becomes a keyframe when '
+        'the camera moved `baseline_ratio` x `scene_depth_m` (else `min_baseline_m`) from the last one, '
+        'turned `max_rotation_deg` or after `max_interval_s`. Without poses (`pose_source`) the sharpest '
+        'frame of every `poseless_interval_s` window is one, published without `keyframes/pose`.'
     ),
     params=(
         Param(
