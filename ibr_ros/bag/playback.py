@@ -122,7 +122,7 @@ def play_qos(
         if offered[0].reliability == 'best_effort':
             notes.append('recorded best_effort, played reliable (which reaches best-effort subscribers too)')
     if override:
-        qos = replace(qos, **{k: v for k, v in override.items() if k != 'depth'}, source='override')  # type: ignore[arg-type]
+        qos = replace(qos, **{k: v for k, v in override.items() if k != 'depth'}, source='override')  # type: ignore[arg-type]  # policy names checked by parse_topic_qos
     if qos.durability == 'transient_local':
         wanted = max([info.count, *(q.depth for q in offered)])
         qos = replace(qos, depth=max(1, min(wanted, max_durable_depth)))

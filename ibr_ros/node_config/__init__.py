@@ -7,9 +7,11 @@ sfm_mode must be 'auto', 'always' or 'off', got 'sometimes'``.
 
 from __future__ import annotations
 
+from typing import Any
+
 from ibr_ros.node_config.bag_player import BAG_PLAYER, BagPlayerConfig
 from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Value, Values
 from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER, ViewRendererConfig, render_config
 
 __all__ = [
@@ -24,9 +26,10 @@ __all__ = [
     'ParamTable',
     'Topic',
     'Value',
+    'Values',
     'ViewRendererConfig',
     'render_config',
 ]
 
 #: Every node's table, by node name, in the order data flows through the graph.
-TABLES: dict[str, ParamTable[object]] = {t.node: t for t in (BAG_PLAYER, FRAME_SUBSAMPLER, VIEW_RENDERER)}
+TABLES: dict[str, ParamTable[Any]] = {t.node: t for t in (BAG_PLAYER, FRAME_SUBSAMPLER, VIEW_RENDERER)}

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ibr_ros.bag.playback import PlaybackPolicy, parse_remaps, parse_topic_qos
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
 
 __all__ = ['BAG_PLAYER', 'BagPlayerConfig']
 
@@ -37,43 +36,43 @@ class BagPlayerConfig:
     progress_s: float
 
 
-def _strings(v: Mapping[str, Value], name: str) -> tuple[str, ...]:
-    return tuple(str(x) for x in v[name])  # type: ignore[union-attr]  # a list parameter
+def _strings(v: Values, name: str) -> tuple[str, ...]:
+    return tuple(v.texts(name))
 
 
-def _build(v: Mapping[str, Value]) -> BagPlayerConfig:
+def _build(v: Values) -> BagPlayerConfig:
     try:
         remap = parse_remaps(_strings(v, 'remap'))
         overrides = parse_topic_qos(_strings(v, 'topic_qos'))
     except ValueError as exc:  # the text names the parameter and the entry
         raise UserError(str(exc)) from exc
-    rate = float(v['rate'])  # type: ignore[arg-type]
-    window = int(v['flow_window'])  # type: ignore[arg-type]
+    rate = v.number('rate')
+    window = v.integer('flow_window')
     return BagPlayerConfig(
-        bag=str(v['bag']),
+        bag=v.text('bag'),
         playback=PlaybackPolicy(
             topics=_strings(v, 'topics'),
             remap=remap,
             topic_qos=overrides,
-            qos_depth=int(v['qos_depth']),  # type: ignore[arg-type]
-            max_durable_depth=int(v['max_durable_depth']),  # type: ignore[arg-type]
-            use_recorded_qos=bool(v['use_recorded_qos']),
+            qos_depth=v.integer('qos_depth'),
+            max_durable_depth=v.integer('max_durable_depth'),
+            use_recorded_qos=v.flag('use_recorded_qos'),
             rate=rate,
             flow_window=window,
         ),
         rate=rate,
-        loop=bool(v['loop']),
-        start_offset_s=float(v['start_offset']),  # type: ignore[arg-type]
-        duration_s=float(v['duration']),  # type: ignore[arg-type]
-        publish_clock=bool(v['publish_clock']),
-        clock_period_s=1.0 / float(v['clock_rate_hz']),  # type: ignore[arg-type]
-        wait_for_subscribers=int(v['wait_for_subscribers']),  # type: ignore[arg-type]
-        wait_timeout_s=float(v['wait_timeout_s']),  # type: ignore[arg-type]
+        loop=v.flag('loop'),
+        start_offset_s=v.number('start_offset'),
+        duration_s=v.number('duration'),
+        publish_clock=v.flag('publish_clock'),
+        clock_period_s=1.0 / v.number('clock_rate_hz'),
+        wait_for_subscribers=v.integer('wait_for_subscribers'),
+        wait_timeout_s=v.number('wait_timeout_s'),
         wait_topics=_strings(v, 'wait_topics'),
         flow_window=window,
-        linger_s=float(v['linger_s']),  # type: ignore[arg-type]
-        ack_timeout_s=float(v['ack_timeout_s']),  # type: ignore[arg-type]
-        progress_s=float(v['progress_s']),  # type: ignore[arg-type]
+        linger_s=v.number('linger_s'),
+        ack_timeout_s=v.number('ack_timeout_s'),
+        progress_s=v.number('progress_s'),
     )
 
 

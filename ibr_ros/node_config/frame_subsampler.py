@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ibr_ros.core.flight.keyframes import KeyframeConfig
 from ibr_ros.core.flight.status import IMAGE_TRANSPORTS, POSE_MODES
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
 
 __all__ = ['FRAME_SUBSAMPLER', 'POSE_TYPES', 'FrameSubsamplerConfig']
 
@@ -37,29 +36,29 @@ class FrameSubsamplerConfig:
     max_pending_bytes: int
 
 
-def _build(v: Mapping[str, Value]) -> FrameSubsamplerConfig:
+def _build(v: Values) -> FrameSubsamplerConfig:
     try:
         keyframes = KeyframeConfig(
-            baseline_ratio=float(v['baseline_ratio']),  # type: ignore[arg-type]
-            min_baseline_m=float(v['min_baseline_m']),  # type: ignore[arg-type]
-            max_rotation_deg=float(v['max_rotation_deg']),  # type: ignore[arg-type]
-            max_interval_s=float(v['max_interval_s']),  # type: ignore[arg-type]
-            min_interval_s=float(v['min_interval_s']),  # type: ignore[arg-type]
-            blur_ratio=float(v['blur_ratio']),  # type: ignore[arg-type]
+            baseline_ratio=v.number('baseline_ratio'),
+            min_baseline_m=v.number('min_baseline_m'),
+            max_rotation_deg=v.number('max_rotation_deg'),
+            max_interval_s=v.number('max_interval_s'),
+            min_interval_s=v.number('min_interval_s'),
+            blur_ratio=v.number('blur_ratio'),
         )
     except ValueError as exc:
         raise UserError(f'bad frame_subsampler parameter: {exc}') from exc
     return FrameSubsamplerConfig(
         keyframes=keyframes,
-        image_transport=str(v['image_transport']),
-        pose_type=str(v['pose_type']),
-        pose_source=str(v['pose_source']),
-        scene_depth_m=float(v['scene_depth_m']),  # type: ignore[arg-type]
-        poseless_interval_s=float(v['poseless_interval_s']),  # type: ignore[arg-type]
-        target_keyframes=int(v['target_keyframes']),  # type: ignore[arg-type]
-        expected_path_m=float(v['expected_path_m']),  # type: ignore[arg-type]
-        max_pending=int(v['max_pending']),  # type: ignore[arg-type]
-        max_pending_bytes=round(float(v['max_pending_mb']) * 2**20),  # type: ignore[arg-type]
+        image_transport=v.text('image_transport'),
+        pose_type=v.text('pose_type'),
+        pose_source=v.text('pose_source'),
+        scene_depth_m=v.number('scene_depth_m'),
+        poseless_interval_s=v.number('poseless_interval_s'),
+        target_keyframes=v.integer('target_keyframes'),
+        expected_path_m=v.number('expected_path_m'),
+        max_pending=v.integer('max_pending'),
+        max_pending_bytes=round(v.number('max_pending_mb') * 2**20),
     )
 
 

@@ -37,7 +37,7 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 import msg_utils
 from ibr_ros.core.flight.stamps import StampAssembler
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Value
+from ibr_ros.node_config.table import Param, ParamTable, Values
 
 __all__ = [
     'BAD_MESSAGE',
@@ -128,7 +128,7 @@ def declare(
     return node.declare_parameter(name, default, desc).value
 
 
-def declare_table(node: Node, table: ParamTable[Any]) -> dict[str, Value]:
+def declare_table(node: Node, table: ParamTable[Any]) -> Values:
     """Declare every parameter of ``table`` with its descriptor (range, choices, read-only unless
     dynamic); the values given (params file, ``-p``), checked by the table (UserError naming one)."""
     values = {p.name: _declare_param(node, p) for p in table.params}
@@ -147,7 +147,7 @@ def _declare_param(node: Node, p: Param) -> object:
         ]
     if p.kind == 'list' and not p.default:  # rclpy would type [] as a byte array: a string array
         value = node.declare_parameter(p.name, Parameter.Type.STRING_ARRAY, desc).value
-        return list(p.default) if value is None else value
+        return [] if value is None else value
     return node.declare_parameter(p.name, p.default, desc).value
 
 

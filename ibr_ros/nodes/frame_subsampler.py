@@ -13,7 +13,9 @@ graph for its inputs' publishers, converts messages and publishes.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -69,7 +71,9 @@ class FrameSubsampler(Node):
                 'min_baseline_m)'
             )
         self.selector = KeyframeSelector(self.config)
-        self.interval = IntervalSelector(self.poseless_interval, self.config)
+        self.interval: IntervalSelector[tuple[np.ndarray, CameraInfo]] = IntervalSelector(
+            self.poseless_interval, self.config
+        )
         self.bad = BadInput(self)
         self.frames = StampAssembler(
             ('image', 'camera_info', 'pose'),
@@ -86,7 +90,7 @@ class FrameSubsampler(Node):
         pose_type, to_matrix = POSE_TYPES[cfg.pose_type]
         pose = lambda m: (to_matrix(m), m.header.frame_id or 'map')  # noqa: E731
         # field -> candidate (message type, topic, conversion), in order of preference.
-        self._inputs: dict[str, list[tuple[type, str, object]]] = {
+        self._inputs: dict[str, list[tuple[type, str, Callable[[Any], Any]]]] = {
             'image': [
                 (IMAGE_TYPES[t], t, msg_utils.camera_image_to_rgb)
                 for t in IMAGE_TRANSPORTS[cfg.image_transport]

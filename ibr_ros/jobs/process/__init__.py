@@ -248,8 +248,9 @@ def _set_threads(threads: int | None) -> int:
     import numba
 
     if threads is not None:
-        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
-            raise UserError(f'--threads must be in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads}')
+        most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at run time by numba.config
+        if not 1 <= threads <= most:
+            raise UserError(f'--threads must be in 1..{most}, got {threads}')
         numba.set_num_threads(threads)
         cv2.setNumThreads(threads)
     return int(numba.get_num_threads())

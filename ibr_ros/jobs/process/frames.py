@@ -80,6 +80,20 @@ class _Frame:
     camera_frame: str
     pose: tuple[np.ndarray, str] | None  # None without poses (SfM mode)
 
+    @property
+    def rgb(self) -> np.ndarray:
+        """The decoded image (a frame that was wanted)."""
+        if self.image is None:
+            raise ValueError(f'frame {self.stamp} ns was not decoded')
+        return self.image
+
+    @property
+    def t_wc(self) -> np.ndarray:
+        """The camera-to-world pose (a flight with poses)."""
+        if self.pose is None:
+            raise ValueError(f'frame {self.stamp} ns has no pose')
+        return self.pose[0]
+
 
 @dataclass
 class _Reading:
@@ -154,7 +168,8 @@ def _frames(
                     bad['navsat (no fix or altitude)'] += 1
                 continue
             else:
-                value = (to_pose(msg), msg.header.frame_id or 'map')
+                pose = to_pose(msg)
+                value = (pose, msg.header.frame_id or 'map')
         except msg_utils.CONVERSION_ERRORS as exc:
             bad[field] += 1
             if field == 'image':
@@ -162,7 +177,7 @@ def _frames(
             LOG.debug('bad %s message at %d ns: %s', field, stamp, exc)
             continue
         if field == 'pose' and poseless:  # ignored, but the ground truth of a synthetic bag
-            reading.bag_poses[stamp] = value[0]  # type: ignore[index]
+            reading.bag_poses[stamp] = pose
             continue
         if (f := assembler.put(stamp, field, value)) is None or (wanted is not None and stamp not in wanted):
             continue
@@ -245,7 +260,7 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
         t_wc, pose_frame = pose if pose is not None and sfm_why is None else (np.full((4, 4), np.nan), '')
         bag_pose = pose[0] if pose is not None else reading.bag_poses.get(frame.stamp)
         camera_frame = frame.camera_frame or 'camera_optical'
-        image: np.ndarray = frame.image  # type: ignore[assignment]  # decoded: a wanted frame
+        image = frame.rgb
         bag_t_wc = bag_pose if sfm_why is not None else None
         keyframes.append(
             Keyframe(
@@ -266,9 +281,9 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
                     'target_keyframes %d ignored: keyframes chosen without poses', fs.target_keyframes
                 )
             selection: dict[str, object] = {'method': 'interval', 'interval_s': fs.poseless_interval_s}
-            interval = IntervalSelector(fs.poseless_interval_s, fs.keyframes)
+            interval: IntervalSelector[_Frame] = IntervalSelector(fs.poseless_interval_s, fs.keyframes)
             for f in frames:
-                for _, chosen in interval.push(f.stamp, blur_score(f.image), f):  # type: ignore[arg-type]
+                for _, chosen in interval.push(f.stamp, blur_score(f.rgb), f):
                     stopped = stopped or keep(chosen, 'sharpest of its window')
                 if stopped:
                     break
@@ -283,13 +298,13 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
                     k.bag_t_wc = reading.bag_poses[k.stamp]
         elif fs.target_keyframes:
             # First pass: stamps, poses and blur scores of every frame; the images are not kept.
-            seen = [(f.stamp, f.pose[0], blur_score(f.image)) for f in frames]  # type: ignore[index, arg-type]
+            seen = [(f.stamp, f.t_wc, blur_score(f.rgb)) for f in frames]
             t0 = time.perf_counter()
-            chosen = select_keyframes_for_target(
+            target = select_keyframes_for_target(
                 [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
                 target=fs.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=fs.keyframes,
             ) if seen else TargetSelection([], 1.0, [])  # fmt: skip
-            picked, scale, decided = chosen.indices, chosen.scale, chosen.decisions
+            picked, scale, decided = target.indices, target.scale, target.decisions
             decisions.update(d.reason for d in decided)
             reasons = {seen[i][0]: decided[i].reason for i in picked}
             if o.max_keyframes is not None and len(picked) > o.max_keyframes:
@@ -323,7 +338,7 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
             selection = {'method': 'streaming'}
             selector = KeyframeSelector(fs.keyframes)
             for f in frames:
-                d = selector.decide(f.stamp, f.pose[0], blur_score(f.image), scene_depth)  # type: ignore[index, arg-type]
+                d = selector.decide(f.stamp, f.t_wc, blur_score(f.rgb), scene_depth)
                 decisions[d.reason] += 1
                 if d.keep and keep(f, d.reason):
                     stopped = True

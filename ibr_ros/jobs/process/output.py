@@ -13,6 +13,7 @@ from ibr_ros.bag import BagWriter, OfferedQos
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.process.render import NovelView
+from msg_utils.flavor import Flavor
 
 #: Output topics (fully qualified: what the graph's relative names resolve to in the root namespace).
 #: QoS the graph's publishers offer (ibr_ros.nodes.common.model_qos / reliable_qos), recorded per topic
@@ -40,7 +41,7 @@ def write_bag(
     model_frame: str,
 ) -> dict[str, int]:
     """The output bag (a new ``path``), every message logged at its header stamp, in time order."""
-    rb = {'flavor': 'rosbags'}
+    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
     events: list[tuple[int, int, str, object]] = []
     for k in keyframes:
         header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)

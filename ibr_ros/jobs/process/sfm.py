@@ -85,14 +85,15 @@ def register_keyframes(
     kept: list[Keyframe] = []
     for k in keyframes:
         t_wc = u.poses.get(k.stamp)
-        if k.stamp not in dropped and t_wc is None:
-            dropped[k.stamp] = 'not registered by SfM (too few matches with the registered keyframes)'
-        if k.stamp in dropped:
-            LOG.warning('keyframe %d ns dropped: %s', k.stamp, dropped[k.stamp])
+        if t_wc is None or k.stamp in dropped:
+            why = dropped.setdefault(
+                k.stamp, 'not registered by SfM (too few matches with the registered keyframes)'
+            )
+            LOG.warning('keyframe %d ns dropped: %s', k.stamp, why)
             continue
-        k.rgb, k.camera = undistort_image(k.rgb, u.camera)  # type: ignore[assignment]
-        k.rgb = np.ascontiguousarray(k.rgb)
-        k.t_wc, k.pose_frame = t_wc, frame_id  # type: ignore[assignment]
+        rgb, k.camera = undistort_image(k.rgb, u.camera)
+        k.rgb = np.ascontiguousarray(rgb)
+        k.t_wc, k.pose_frame = t_wc, frame_id
         kept.append(k)
     if not u.metric:
         schedule = cfg.schedule
