@@ -1,11 +1,15 @@
 """Per-keyframe depth: plane-sweep MVS, pruning, monocular depth and its per-view lookup table,
-MST non-local fusion, sky masks, the refinement pipeline and the refinement scheduler.
+MST non-local fusion, sky masks, the refinement pipeline, the refinement scheduler and depth
+colouring for previews.
 
 Depth maps are float32 z-depth in metres (REP-118 in messages: NaN unknown, +inf sky).
 """
 
 from __future__ import annotations
 
+from ibr_ros.core.depth.colour import (
+    colour_depth,
+)
 from ibr_ros.core.depth.fusion import (
     build_mst,
     fuse_depth,
@@ -107,6 +111,7 @@ __all__ = [
     'axis_scene_depth',
     'build_lut',
     'build_mst',
+    'colour_depth',
     'compute_depth_maps',
     'depth_range_from_points',
     'erode_sky',
