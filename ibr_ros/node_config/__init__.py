@@ -7,13 +7,16 @@ sfm_mode must be 'auto', 'always' or 'off', got 'sometimes'``.
 
 from __future__ import annotations
 
+from ibr_ros.node_config.depth_refiner import DEPTH_REFINER, DepthRefinerConfig
 from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
 from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER, ViewRendererConfig, render_config
 
 __all__ = [
+    'DEPTH_REFINER',
     'INTRINSICS',
     'TABLES',
     'VIEW_RENDERER',
+    'DepthRefinerConfig',
     'Param',
     'ParamTable',
     'Topic',
@@ -23,4 +26,4 @@ __all__ = [
 ]
 
 #: Every node's table, by node name, in the order data flows through the graph.
-TABLES: dict[str, ParamTable[object]] = {t.node: t for t in (VIEW_RENDERER,)}
+TABLES: dict[str, ParamTable[object]] = {t.node: t for t in (DEPTH_REFINER, VIEW_RENDERER)}
