@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 import msg_utils
 from ibr_ros.bag import open_bag
+from ibr_ros.core.depth.colour import colour_depth as colour_inverse_depth
 from ibr_ros.core.depth.fusion import fuse_depth
 from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig
@@ -143,13 +144,9 @@ def sparse_points(gts: list, views: list[MvsView], seed: int, per_view: int = 50
 
 
 def colour_depth(d: NDArray, vmin: float, vmax: float) -> NDArray[np.uint8]:
-    """Inverse-depth colouring (turbo), black where unknown."""
-    ok = np.isfinite(d) & (d > 0)
-    inv = np.zeros(d.shape, np.float64)
-    inv[ok] = (1.0 / d[ok] - 1.0 / vmax) / (1.0 / vmin - 1.0 / vmax)
-    img = cv2.applyColorMap(np.clip(inv * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    img[~ok] = 0
-    return img
+    """BGR (for cv2) turbo colouring of inverse depth from ``vmin`` to ``vmax`` (m), black where unknown:
+    :func:`ibr_ros.core.depth.colour.colour_depth`."""
+    return colour_inverse_depth(d, (vmin, vmax), bgr=True)
 
 
 def _grid_png(path: Path, rgb: NDArray, maps: dict[str, NDArray], g: NDArray) -> None:

@@ -46,7 +46,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numba
@@ -88,6 +88,17 @@ class MvsBackendUnavailable(RuntimeError):  # noqa: N818 (the name the callers u
     """The requested MVS backend cannot run on this machine (e.g. pycolmap without CUDA)."""
 
 
+#: The :class:`MvsOptions` fields that are keyword arguments of :func:`select_neighbours`.
+_NEIGHBOUR_OPTIONS = (
+    'max_neighbours',
+    'min_angle_deg',
+    'max_angle_deg',
+    'target_angle_deg',
+    'min_overlap',
+    'max_view_angle_deg',
+)
+
+
 @dataclass(frozen=True)
 class MvsOptions:
     """Parameters of :func:`mvs_depth` and :func:`compute_depth_maps` (see the module docstring).
@@ -98,8 +109,8 @@ class MvsOptions:
     ``refine_steps`` half-plane offsets each side, ``propagation_radius`` (sweep-scale pixels),
     ``surface_passes``. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
     0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off), ``edge_trim_ratio``. Neighbours: the
-    keyword arguments of :func:`select_neighbours`. Geometric filter: ``min_consistent``,
-    ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
+    keyword arguments of :func:`select_neighbours` (:meth:`neighbour_options`). Geometric filter:
+    ``min_consistent``, ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
     """
 
     backend: Literal['cpu', 'colmap'] = 'cpu'
@@ -128,6 +139,10 @@ class MvsOptions:
     min_consistent: int = 2
     max_reproj_px: float = 1.0
     max_rel_depth_err: float = 0.01
+
+    def neighbour_options(self) -> dict[str, Any]:
+        """The neighbour settings as keyword arguments of :func:`select_neighbours`."""
+        return {name: getattr(self, name) for name in _NEIGHBOUR_OPTIONS}
 
     def __post_init__(self) -> None:
         def bad(name: str, rule: str) -> ValueError:
@@ -910,14 +925,7 @@ def compute_depth_maps(
     )
     for i, (v, c) in enumerate(zip(views, cams)):
         _grey(f'views[{i}].rgb', v.rgb, c)
-    kw = {
-        'max_neighbours': o.max_neighbours,
-        'min_angle_deg': o.min_angle_deg,
-        'max_angle_deg': o.max_angle_deg,
-        'target_angle_deg': o.target_angle_deg,
-        'min_overlap': o.min_overlap,
-        'max_view_angle_deg': o.max_view_angle_deg,
-    }
+    kw = o.neighbour_options()
     nbrs: list[list[int]] = []
     no_range = [False] * n
     for i in range(n):

@@ -11,15 +11,13 @@ from typing import TypeVar
 
 import yaml
 
-from ibr_ros.core.depth.mvs import MvsOptions
 from ibr_ros.core.depth.refine import RefinerConfig
-from ibr_ros.core.depth.schedule import ScheduleConfig, parse_depth_range
+from ibr_ros.core.depth.schedule import ScheduleConfig
 from ibr_ros.core.registration.sfm_session import ScaleHint
 from ibr_ros.core.render.renderer import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.node_config import FRAME_SUBSAMPLER, VIEW_RENDERER, FrameSubsamplerConfig
-from ibr_ros.node_config.depth_refiner import refiner_config, sfm_settings
+from ibr_ros.node_config import DEPTH_REFINER, FRAME_SUBSAMPLER, VIEW_RENDERER, FrameSubsamplerConfig
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 T = TypeVar('T')
@@ -27,7 +25,8 @@ T = TypeVar('T')
 
 #: The nodes whose parameters ``ibr process`` reads.
 NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
-REFINER_MODEL_PARAMETERS = ('mono', 'mono_model', 'mono_preset', 'sky', 'sky_model', 'sky_preset')
+#: depth_refiner parameters ``ibr process`` sets itself: one worker, the whole flight known.
+REFINER_OFFLINE = {'num_workers': 1, 'worker_index': 0, 'refine_again': False}
 
 
 def _named(node: str, fn: Callable[..., T], *args: object) -> T:
@@ -154,30 +153,14 @@ def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> 
     fs, dr, vr = (params[n] for n in NODES)
     try:
         subsampler = FRAME_SUBSAMPLER.config(fs, where='frame_subsampler.')
-        mvs = MvsOptions(max_neighbours=int(dr['max_neighbours']))
-        schedule = ScheduleConfig(
-            min_neighbours=int(dr['min_neighbours']),
-            depth_range=parse_depth_range(dr['depth_range']),  # type: ignore[arg-type]
-            scene_depth_m=float(dr['scene_depth_m']),
-            near_ratio=float(dr['near_ratio']),
-            far_ratio=float(dr['far_ratio']),
-            mvs=mvs,
-        )
-        sfm_mode = str(dr['sfm_mode'])
-        scale_hint = _named(
-            'depth_refiner', sfm_settings, sfm_mode, str(dr['sfm_scale']), float(dr['sfm_scale_m'])
-        )
-        sfm_min_keyframes = int(dr['sfm_min_keyframes'])
-        sfm_max_side = int(dr['sfm_max_side'])
+        refining = _named('depth_refiner', DEPTH_REFINER.config, {**dr, **REFINER_OFFLINE})
         poseless_interval_s = subsampler.poseless_interval_s
+        sfm_min_keyframes, sfm_max_side = refining.sfm.min_keyframes, refining.sfm.max_side
         if poseless_interval_s <= 0 or sfm_min_keyframes < 3 or sfm_max_side < 0:
             raise UserError(
                 'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
                 f'sfm_max_side >= 0, got {poseless_interval_s}, {sfm_min_keyframes}, {sfm_max_side}'
             )
-        refiner = _named(
-            'depth_refiner', refiner_config, *(str(dr[k]) for k in REFINER_MODEL_PARAMETERS), mvs
-        )
         render = VIEW_RENDERER.config(vr, where='view_renderer.').render
     except (ValueError, TypeError, KeyError) as exc:
         raise UserError(f'bad node parameters: {exc}') from exc
@@ -193,15 +176,15 @@ def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> 
         raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
     return ProcessConfigs(
         subsampler=replace(subsampler, target_keyframes=target),
-        schedule=schedule,
+        schedule=refining.schedule,
         flush=True,  # offline the flight has ended: as live once keyframes/status says so
-        refiner=refiner,
+        refiner=refining.refiner,
         render=render,
         out_size=size,
         min_valid=float(vr['min_valid_fraction']),
         view_frame=str(vr['frame_id']),
-        sfm_mode=sfm_mode,
+        sfm_mode=refining.sfm.mode,
         sfm_min_keyframes=sfm_min_keyframes,
         sfm_max_side=sfm_max_side,
-        sfm_scale=scale_hint,
+        sfm_scale=refining.sfm.scale,
     )

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import logging
-import time
 
 from ibr_ros.core.depth.mono import MonoModelError
-from ibr_ros.core.depth.mvs import MvsView, compute_depth_maps
-from ibr_ros.core.depth.refine import DepthRefiner, RefineError
+from ibr_ros.core.depth.mvs import MvsView
+from ibr_ros.core.depth.refine import DepthRefiner, refine_job
 from ibr_ros.core.depth.schedule import RefineScheduler
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.frames import Keyframe
@@ -45,26 +44,20 @@ def refine_all(
             break
         attempts += 1
         kf = by_stamp[job.stamp]
-        t0 = time.perf_counter()
-        mvs = compute_depth_maps(job.views, options=cfg.refiner.mvs, depth_range=job.depth_range)[0]
-        t1 = time.perf_counter()
-        try:
-            r = refiner.refine_from_mvs(job.view, mvs.depth)
-        except RefineError as exc:
+        result = refine_job(refiner, job, cfg.schedule.mvs)
+        kf.timings_s = dict(result.timings_s)
+        if result.refined is None:
             scheduler.failed(job)
-            failures[job.stamp] = f'{len(job.neighbours)} neighbours, MVS {mvs.reason or "ok"}: {exc}'
+            failures[job.stamp] = f'{result.context}: {result.error}'
             LOG.warning('keyframe %d ns not refined: %s', job.stamp, failures[job.stamp])
-            kf.timings_s = {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}
             continue
-        t2 = time.perf_counter()
         scheduler.done(job)
         failures.pop(job.stamp, None)
-        kf.depth = r.depth
+        kf.depth = result.refined.depth
         kf.neighbours = job.neighbours
-        kf.timings_s = {'mvs': t1 - t0, 'refine': t2 - t1}
         LOG.info(
             'refined keyframe %d/%d (%d ns) with %d neighbours in %.2f s',
-            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), t2 - t0,
+            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), result.seconds,
         )  # fmt: skip
         if progress is not None:
             progress('keyframes', len(scheduler.refined()), len(keyframes))
