@@ -117,7 +117,7 @@ def load_views(bag: Path, step: int, max_views: int, first: int = 0) -> list[tup
             m.timestamp_ns: msg_utils.pose_stamped_to_matrix(m.msg) for m in reader.messages([TOPICS['pose']])
         }
         infos = {m.timestamp_ns: m.msg for m in reader.messages([TOPICS['camera_info']])}
-        views = []
+        views: list[tuple[int, MvsView]] = []
         for i, m in enumerate(reader.messages([TOPICS['image']])):
             if i < first or (i - first) % step or len(views) >= max_views:
                 continue
@@ -224,7 +224,9 @@ def evaluate_depth(
             }
             for name, fn in REMAPS.items()
         }
-        fmm = cv2.inpaint(pruned, (pruned == 0).astype(np.uint8), 5, cv2.INPAINT_TELEA)
+        fmm = np.asarray(
+            cv2.inpaint(pruned, (pruned == 0).astype(np.uint8), 5, cv2.INPAINT_TELEA), np.float32
+        )
         alpha0 = fuse_depth(view.rgb, pruned, r.mono_remapped, sigma=o.refiner.sigma, alpha=0.0)
         preds = {'mvs': pruned, 'fmm': fmm, 'ours_alpha0': alpha0, 'ours': r.fused}
         row['table2_holes'] = {m: depth_metrics(p, gt, hole) for m, p in preds.items()}

@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Literal, cast
 
 from ibr_ros.core.depth.mvs import MvsOptions
 from ibr_ros.core.depth.refine import RefinerConfig
 from ibr_ros.core.depth.schedule import ScheduleConfig, parse_depth_range
-from ibr_ros.core.registration.sfm_session import ScaleHint
-from ibr_ros.core.registration.trigger import SFM_MODES, SfmConfig
+from ibr_ros.core.registration.sfm_session import ScaleHint, ScaleKind
+from ibr_ros.core.registration.trigger import SFM_MODES, SfmConfig, SfmMode
 from ibr_ros.errors import UserError
 from ibr_ros.models import mono_spec, sky_spec
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
 
 __all__ = ['DEBUG_TOPICS', 'DEPTH_REFINER', 'SFM_MODES', 'SFM_SCALES', 'DepthRefinerConfig']
 
@@ -51,25 +51,25 @@ class DepthRefinerConfig:
         return self.schedule.mvs
 
 
-def _refiner(v: Mapping[str, Value]) -> RefinerConfig:
+def _refiner(v: Values) -> RefinerConfig:
     """``mono*`` and ``sky*`` as a :class:`RefinerConfig` (models resolved, not loaded)."""
-    mono, sky = str(v['mono']), str(v['sky'])
+    mono, sky = v.text('mono'), v.text('sky')
     return RefinerConfig(
-        mono=mono,  # type: ignore[arg-type]  # one of the parameter's choices
-        mono_model=mono_spec(str(v['mono_model']), str(v['mono_preset'])) if mono == 'onnx' else None,
-        sky=sky,  # type: ignore[arg-type]  # one of the parameter's choices
-        sky_model=sky_spec(str(v['sky_model']), str(v['sky_preset'])) if sky == 'onnx' else None,
+        mono=cast(Literal['plane', 'onnx'], mono),  # one of the parameter's choices
+        mono_model=mono_spec(v.text('mono_model'), v.text('mono_preset')) if mono == 'onnx' else None,
+        sky=cast(Literal['fallback', 'onnx', 'none'], sky),  # one of the parameter's choices
+        sky_model=sky_spec(v.text('sky_model'), v.text('sky_preset')) if sky == 'onnx' else None,
     )
 
 
-def _sfm(v: Mapping[str, Value], num_workers: int) -> tuple[SfmConfig, tuple[str, ...]]:
+def _sfm(v: Values, num_workers: int) -> tuple[SfmConfig, tuple[str, ...]]:
     """The SfM settings and start-up notes; UserError for combinations the table cannot express."""
-    mode, scale, scale_m = str(v['sfm_mode']), str(v['sfm_scale']), float(v['sfm_scale_m'])  # type: ignore[arg-type]
+    mode, scale, scale_m = v.text('sfm_mode'), v.text('sfm_scale'), v.number('sfm_scale_m')
     hint = None
     if scale != 'none':
         if scale_m <= 0:
             raise UserError(f'parameter sfm_scale_m must be > 0 with sfm_scale {scale!r}, got {scale_m}')
-        hint = ScaleHint(scale, scale_m)  # type: ignore[arg-type]  # one of the parameter's choices
+        hint = ScaleHint(cast(ScaleKind, scale), scale_m)  # one of the parameter's choices
     notes: tuple[str, ...] = ()
     if num_workers > 1 and mode == 'always':
         raise UserError(
@@ -80,29 +80,29 @@ def _sfm(v: Mapping[str, Value], num_workers: int) -> tuple[SfmConfig, tuple[str
         mode = 'off'
         notes = ('num_workers > 1: sfm_mode auto acts as off (one SfM registration per graph)',)
     config = SfmConfig(
-        mode=mode,  # type: ignore[arg-type]  # one of the parameter's choices
-        min_keyframes=int(v['sfm_min_keyframes']),  # type: ignore[arg-type]
-        every=int(v['sfm_every']),  # type: ignore[arg-type]
-        max_side=int(v['sfm_max_side']),  # type: ignore[arg-type]
+        mode=cast(SfmMode, mode),  # one of the parameter's choices
+        min_keyframes=v.integer('sfm_min_keyframes'),
+        every=v.integer('sfm_every'),
+        max_side=v.integer('sfm_max_side'),
         scale=hint,
     )
     return config, notes
 
 
-def _build(v: Mapping[str, Value]) -> DepthRefinerConfig:
-    num_workers = int(v['num_workers'])  # type: ignore[arg-type]
+def _build(v: Values) -> DepthRefinerConfig:
+    num_workers = v.integer('num_workers')
     sfm, notes = _sfm(v, num_workers)
     try:
         schedule = ScheduleConfig(
             num_workers=num_workers,
-            worker_index=int(v['worker_index']),  # type: ignore[arg-type]
-            min_neighbours=int(v['min_neighbours']),  # type: ignore[arg-type]
-            refine_again=bool(v['refine_again']),
-            depth_range=parse_depth_range(v['depth_range']),  # type: ignore[arg-type]
-            scene_depth_m=float(v['scene_depth_m']),  # type: ignore[arg-type]
-            near_ratio=float(v['near_ratio']),  # type: ignore[arg-type]
-            far_ratio=float(v['far_ratio']),  # type: ignore[arg-type]
-            mvs=MvsOptions(max_neighbours=int(v['max_neighbours'])),  # type: ignore[arg-type]
+            worker_index=v.integer('worker_index'),
+            min_neighbours=v.integer('min_neighbours'),
+            refine_again=v.flag('refine_again'),
+            depth_range=parse_depth_range(v.numbers('depth_range')),
+            scene_depth_m=v.number('scene_depth_m'),
+            near_ratio=v.number('near_ratio'),
+            far_ratio=v.number('far_ratio'),
+            mvs=MvsOptions(max_neighbours=v.integer('max_neighbours')),
         )
     except ValueError as exc:  # names the parameters (ScheduleConfig's fields have their names)
         raise UserError(f'parameter {exc}') from exc
@@ -110,13 +110,13 @@ def _build(v: Mapping[str, Value]) -> DepthRefinerConfig:
         schedule=schedule,
         refiner=_refiner(v),
         sfm=sfm,
-        flush_after_s=float(v['flush_after_s']),  # type: ignore[arg-type]
-        worker_lease_s=float(v['worker_lease_s']),  # type: ignore[arg-type]
-        mirror_model=bool(v['mirror_model']),
-        publish_debug=bool(v['publish_debug']),
-        max_pending=int(v['max_pending']),  # type: ignore[arg-type]
-        max_pending_bytes=round(float(v['max_pending_mb']) * 2**20),  # type: ignore[arg-type]
-        warmup=bool(v['warmup']),
+        flush_after_s=v.number('flush_after_s'),
+        worker_lease_s=v.number('worker_lease_s'),
+        mirror_model=v.flag('mirror_model'),
+        publish_debug=v.flag('publish_debug'),
+        max_pending=v.integer('max_pending'),
+        max_pending_bytes=round(v.number('max_pending_mb') * 2**20),
+        warmup=v.flag('warmup'),
         notes=notes,
     )
 

@@ -176,10 +176,11 @@ class DepthRefinerNode(Node):
             if mono_spec is not None and str(exc).startswith(str(mono_spec.path)):
                 bad, path = f'mono_model {values["mono_model"]!r}', mono_spec.path
             else:
-                bad, path = f'sky_model {values["sky_model"]!r}', (sky_spec or mono_spec).path  # type: ignore[union-attr]
+                spec = sky_spec or mono_spec
+                bad, path = f'sky_model {values["sky_model"]!r}', spec.path if spec is not None else None
             raise UserError(f'parameter {bad}: {str(exc).removeprefix(f"{path}: ")}') from exc
-        used = [f'mono {config.mono}' + (f' ({mono_spec.path.name})' if mono_spec else '')]
-        used.append(f'sky {config.sky}' + (f' ({sky_spec.path.name})' if sky_spec else ''))
+        used = [f'mono {config.mono}' + (f' ({mono_spec.path.name})' if mono_spec and mono_spec.path else '')]
+        used.append(f'sky {config.sky}' + (f' ({sky_spec.path.name})' if sky_spec and sky_spec.path else ''))
         self.get_logger().info(f'depth refinement with {", ".join(used)}')
         return refiner
 
@@ -246,6 +247,7 @@ class DepthRefinerNode(Node):
             third = not register and self.trigger.wait_for_pose(stamp)
         if register:
             self.frames.discard(stamp)
+            # the assembler's fields: an rgb array and (frame_id, camera), as their converters make them
             self._add_poseless(stamp, partial['image'], *partial['camera_info'])  # type: ignore[arg-type,misc]
         elif third:
             self.get_logger().info(
@@ -464,6 +466,8 @@ class DepthRefinerNode(Node):
             for stamp in u.new:
                 image, camera, frame_id = self._sfm_views[stamp]
                 t_wc = u.poses[stamp]
+                if t_wc is None or self.pub_pose is None:  # a new keyframe is registered; SfM mode
+                    continue
                 self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
                 self.schedule.add(stamp, MvsView(image, camera, t_wc))
                 self.frame_ids[stamp] = frame_id

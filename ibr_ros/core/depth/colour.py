@@ -36,8 +36,8 @@ def colour_depth(
     grey = np.zeros(d.shape, np.uint8)
     t = ((inv - lo) / max(hi - lo, 1e-12)).astype(np.float64)
     grey[ok] = np.clip(t * 255, 0, 255).astype(np.uint8)
-    out = cv2.applyColorMap(grey, cv2.COLORMAP_TURBO)
+    out = np.asarray(cv2.applyColorMap(grey, cv2.COLORMAP_TURBO), np.uint8)
     if not bgr:
-        out = cv2.cvtColor(out, cv2.COLOR_BGR2RGB)
+        out = np.asarray(cv2.cvtColor(out, cv2.COLOR_BGR2RGB), np.uint8)
     out[~ok] = 0
     return out

@@ -132,8 +132,9 @@ class DepthRefiner:
     def __init__(self, config: RefinerConfig | None = None) -> None:
         self.config = config or RefinerConfig()
         c = self.config
-        self._mono = OnnxMonoDepth(c.mono_model) if c.mono == 'onnx' else None  # type: ignore[arg-type]
-        self._sky = OnnxSkySegmenter(c.sky_model) if c.sky == 'onnx' else None  # type: ignore[arg-type]
+        # RefinerConfig guarantees a model for each 'onnx' backend.
+        self._mono = OnnxMonoDepth(c.mono_model) if c.mono_model is not None and c.mono == 'onnx' else None
+        self._sky = OnnxSkySegmenter(c.sky_model) if c.sky_model is not None and c.sky == 'onnx' else None
 
     def refine(
         self,

@@ -161,13 +161,13 @@ def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> 
                 'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
                 f'sfm_max_side >= 0, got {poseless_interval_s}, {sfm_min_keyframes}, {sfm_max_side}'
             )
-        render = VIEW_RENDERER.config(vr, where='view_renderer.').render
+        viewing = VIEW_RENDERER.config(vr, where='view_renderer.')
     except (ValueError, TypeError, KeyError) as exc:
         raise UserError(f'bad node parameters: {exc}') from exc
     size = (
-        int(vr['width']) if o.width is None else o.width,
-        int(vr['height']) if o.height is None else o.height,
-        float(vr['hfov_deg']) if o.hfov_deg is None else o.hfov_deg,
+        viewing.width if o.width is None else o.width,
+        viewing.height if o.height is None else o.height,
+        viewing.hfov_deg if o.hfov_deg is None else o.hfov_deg,
     )
     if size[0] < 0 or size[1] < 0 or not 0 <= size[2] < 180:
         raise UserError(f'novel view size {size[0]}x{size[1]}, hfov {size[2]} deg: need >= 0 and hfov < 180')
@@ -179,10 +179,10 @@ def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> 
         schedule=refining.schedule,
         flush=True,  # offline the flight has ended: as live once keyframes/status says so
         refiner=refining.refiner,
-        render=render,
+        render=viewing.render,
         out_size=size,
-        min_valid=float(vr['min_valid_fraction']),
-        view_frame=str(vr['frame_id']),
+        min_valid=viewing.min_valid_fraction,
+        view_frame=viewing.frame_id,
         sfm_mode=refining.sfm.mode,
         sfm_min_keyframes=sfm_min_keyframes,
         sfm_max_side=sfm_max_side,
