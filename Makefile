@@ -40,16 +40,19 @@ install: $(VENV)/.installed
 demo: install
 	$(BIN)/ibr demo
 
-test: install
+# CI (.ci/run) runs this: the lint first, then every test.
+test: install lint
 	$(BIN)/python -m pytest -q test
 
 # The unit tests alone (no DDS, no end-to-end job): a couple of minutes.
 test-fast: install
 	$(BIN)/python -m pytest -q -m 'not dds and not e2e' test
 
+# ruff over all Python; mypy over ibr_ros and msg_utils (configuration: setup.cfg [mypy]).
 lint: install
 	$(BIN)/ruff check ibr_ros msg_utils test bench launch setup.py
 	$(BIN)/ruff format --check ibr_ros msg_utils test bench launch setup.py
+	$(BIN)/mypy
 
 bench: install
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
@@ -62,4 +65,4 @@ lock:
 	  /tmp/ibr_lock/bin/pip freeze --all | grep -v '^pip=='; } > requirements/constraints.txt
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache out
+	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache out

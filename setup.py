@@ -24,6 +24,8 @@ LAUNCHER = """#!/bin/sh
 prefix=$(CDPATH= cd -- "$(dirname -- "$0")/../.." && pwd)
 py=python3
 [ -x "$prefix/bin/python3" ] && py="$prefix/bin/python3"
+# Safe path (Python >= 3.11): import the installed package, not a checkout in the working directory.
+export PYTHONSAFEPATH=1
 exec "$py" -m {package}.launch_entry {name} "$@"
 """
 
@@ -48,7 +50,7 @@ setup(
     package_data={PACKAGE: ['models/*.onnx', 'models/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
-        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}', ['package.xml', 'LICENSE']),
         (f'share/{PACKAGE}/config', glob('config/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
         (f'lib/{PACKAGE}', _launchers()),
@@ -61,6 +63,7 @@ setup(
     maintainer_email='ibr-ros@example.com',
     description='Image-based rendering for drone captures as a ROS 2 node graph.',
     license='BSD-3-Clause',
+    license_files=['LICENSE'],
     python_requires='>=3.10',
     entry_points={'console_scripts': [f'{n} = {PACKAGE}.launch_entry:main' for n in sorted(SCRIPTS)]},
 )

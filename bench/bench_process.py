@@ -59,7 +59,7 @@ def live_schedule_seconds(bag: Path, params: Path | None, max_keyframes: int | N
     def drain(flush: bool) -> None:
         while (job := scheduler.next_job(flush=flush)) is not None:
             t0 = time.perf_counter()
-            mvs = compute_depth_maps(job.views, options=cfg.refiner.mvs, depth_range=job.depth_range)[0]
+            mvs = compute_depth_maps(job.views, options=cfg.schedule.mvs, depth_range=job.depth_range)[0]
             try:
                 refiner.refine_from_mvs(job.view, mvs.depth)
             except RefineError:

@@ -20,7 +20,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,7 +119,7 @@ def claim_domain(first: int) -> tuple[int, socket.socket]:
     raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 (all lock ports are bound)')
 
 
-def _libc_prctl() -> object:
+def _libc_prctl() -> Callable[..., int] | None:
     try:
         return ctypes.CDLL(None, use_errno=True).prctl
     except (OSError, AttributeError):  # not Linux
@@ -132,7 +132,7 @@ _PRCTL = _libc_prctl()  # looked up here: the child between fork and exec only c
 def die_with_parent() -> None:
     """In the child before exec: SIGTERM when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
     if _PRCTL is not None:
-        _PRCTL(1, signal.SIGTERM, 0, 0, 0)  # type: ignore[operator]
+        _PRCTL(1, signal.SIGTERM, 0, 0, 0)
 
 
 def _ros_value(value: object) -> str:

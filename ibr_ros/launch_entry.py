@@ -26,12 +26,12 @@ def sigterm_as_interrupt() -> None:
     signal.signal(signal.SIGTERM, _interrupt)
 
 
-def interrupted(exc: BaseException) -> bool:
+def interrupted(exc: BaseException | None) -> bool:
     """Whether ``exc`` is a Ctrl-C, also when numba wrapped it (a SystemError with it as context)."""
     while exc is not None:
         if isinstance(exc, KeyboardInterrupt):
             return True
-        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+        exc = exc.__cause__ or exc.__context__
     return False
 
 

@@ -13,7 +13,7 @@ from msg_utils.compressed import (
     numpy_to_compressed_depth,
     numpy_to_compressed_image,
 )
-from msg_utils.errors import MessageError
+from msg_utils.errors import CONVERSION_ERRORS, MessageError
 from msg_utils.flavor import (
     Flavor,
     coerce_header,
@@ -50,6 +50,7 @@ from msg_utils.pose import (
 from msg_utils.status import pairs_to_status, status_to_pairs
 
 __all__ = [
+    'CONVERSION_ERRORS',
     'ENCODINGS',
     'Flavor',
     'GeoFix',

@@ -1,8 +1,11 @@
-"""The one exception type of :mod:`msg_utils`."""
+"""The one exception type of :mod:`msg_utils`, and what converting a message may raise."""
 
 from __future__ import annotations
 
-__all__ = ['MessageError']
+from ibr_ros.core.geometry.camera import CameraError
+from ibr_ros.core.geometry.transforms import GeometryError
+
+__all__ = ['CONVERSION_ERRORS', 'MessageError']
 
 
 class MessageError(ValueError):
@@ -11,3 +14,9 @@ class MessageError(ValueError):
     The text names the offending field and its value, e.g.
     ``Image.step 100 is smaller than width*3 = 120``.
     """
+
+
+#: What converting a malformed message raises: :class:`MessageError` and the camera and pose
+#: validation errors of :mod:`ibr_ros.core.geometry` (all ValueErrors, ValueError itself included).
+#: Catch these to count and drop a bad message.
+CONVERSION_ERRORS: tuple[type[Exception], ...] = (MessageError, CameraError, GeometryError, ValueError)

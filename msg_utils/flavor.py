@@ -52,7 +52,7 @@ def _check_flavor(flavor: str) -> None:
 
 
 @functools.cache
-def message_class(typename: str, flavor: Flavor = 'rclpy') -> type:
+def message_class(typename: str, flavor: Flavor = 'rclpy') -> type[Any]:
     """The message class of ``typename`` (``'sensor_msgs/msg/Image'``) in ``flavor``."""
     _check_flavor(flavor)
     if flavor == 'rosbags':
@@ -79,10 +79,10 @@ def is_rosbags_message(msg: object) -> bool:
     return isinstance(getattr(type(msg), '__msgtype__', None), str)
 
 
-def message_typename(msg: object) -> str:
+def message_typename(msg: Any) -> str:
     """``'package/msg/Name'`` of a message of either flavour."""
     if is_rosbags_message(msg):
-        return type(msg).__msgtype__  # type: ignore[attr-defined]
+        return type(msg).__msgtype__
     cls = type(msg)
     pkg, kind = cls.__module__.split('.')[:2]
     return f'{pkg}/{kind}/{cls.__name__}'

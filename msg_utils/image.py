@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import array
 import sys
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -160,9 +160,12 @@ def image_to_rgb(msg: Any) -> NDArray[np.uint8]:
     a = image_to_numpy(msg)
     if msg.encoding == 'rgb8':
         return a
+    # cv2's stubs give no dtypes: cvtColor keeps uint8.
     if a.ndim == 2:
-        return np.repeat(a[:, :, None], 3, axis=2) if a.size == 0 else cv2.cvtColor(a, cv2.COLOR_GRAY2RGB)
-    return a[..., :3][..., ::-1].copy() if a.size == 0 else cv2.cvtColor(a, _TO_RGB[msg.encoding])
+        rgb = np.repeat(a[:, :, None], 3, axis=2) if a.size == 0 else cv2.cvtColor(a, cv2.COLOR_GRAY2RGB)
+    else:
+        rgb = a[..., :3][..., ::-1].copy() if a.size == 0 else cv2.cvtColor(a, _TO_RGB[msg.encoding])
+    return cast('NDArray[np.uint8]', rgb)
 
 
 def depth_mm_to_m(depth_mm: ArrayLike) -> NDArray[np.float32]:

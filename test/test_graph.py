@@ -35,7 +35,7 @@ def test_specs_with_sharded_refiners(repo):
     player = specs[0].params  # playback waits for the frame_subsampler, however long that takes
     assert (player['wait_for_subscribers'], player['wait_timeout_s']) == (1, 0.0)
     assert player['wait_topics'] == ['/camera/image_raw/compressed', '/camera/camera_info', '/camera/pose']
-    assert specs[4].params == {'width': '320'}
+    assert specs[4].params == {'width': 320}  # typed by the view_renderer's table
     cmd = node_command(specs[3], config=repo / 'config', python='python3')
     # -P: the installed package, never a checkout in the working directory.
     assert cmd[:6] == ['python3', '-P', '-m', 'ibr_ros.launch_entry', 'depth_refiner', '--ros-args']
@@ -149,3 +149,21 @@ def test_ibr_process_removes_stale_staging_folders(tmp_path):
     assert not dead.exists()
     assert live.exists()  # a running process's
     assert other.exists()  # another output's
+
+
+def test_set_values_are_read_as_yaml_and_checked_against_the_node_table(repo):
+    from ibr_ros.graph import node_command
+
+    specs = build_specs(
+        _args(
+            no_player=True,
+            set=['view_renderer.hfov_deg=80', 'view_renderer.frame_id=cam', 'view_renderer.warmup=false'],
+        )
+    )
+    renderer = next(s for s in specs if s.name == 'view_renderer')
+    assert renderer.params == {'hfov_deg': 80.0, 'frame_id': 'cam', 'warmup': False}
+    assert 'hfov_deg:=80.0' in node_command(renderer)
+    with pytest.raises(UserError, match=r'parameter view_renderer\.width must be an integer'):
+        build_specs(_args(no_player=True, set=['view_renderer.width=wide']))
+    with pytest.raises(UserError, match="'x' is not a parameter of view_renderer"):
+        build_specs(_args(no_player=True, set=['view_renderer.x=1']))

@@ -11,9 +11,10 @@ from __future__ import annotations
 import importlib
 import logging
 import threading
+from collections.abc import Iterable
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
@@ -135,7 +136,7 @@ class McapSource:
                     self.start_ns = min(self.start_ns, message.log_time)
                     self.end_ns = max(self.end_ns, message.log_time)
             self._msgtypes: dict[int, str] = {}
-            self.topics = {}
+            self.topics: dict[str, SourceTopic] = {}
             for cid, channel in sorted(channels.items()):
                 if channel.message_encoding != 'cdr':
                     raise BagError(
@@ -203,7 +204,7 @@ def _unparsed_qos() -> Iterator[None]:
     :func:`~ibr_ros.bag.qos.parse_offered_qos`. Only rosbags' reading modules are patched, only for the
     ``open`` (which reads all connections), under a lock.
     """
-    modules = []
+    modules: list[Any] = []  # rosbags modules that have a parse_qos to patch
     for name in ('reader', 'storage_mcap', 'storage_sqlite3'):
         try:
             module = importlib.import_module(f'rosbags.rosbag2.{name}')
@@ -244,10 +245,10 @@ def _offered_qos(path: Path, topic: str, recorded: Iterable[object]) -> tuple[Of
     return tuple(profiles)
 
 
-def _typestore_from_schemas(schemas: object) -> Typestore:
+def _typestore_from_schemas(schemas: Iterable[Any]) -> Typestore:
     """A typestore with the ``ros2msg``/``ros2idl`` definitions embedded in MCAP schemas."""
     typs: dict = {}
-    for schema in schemas:  # type: ignore[attr-defined]
+    for schema in schemas:
         text = schema.data.decode()
         if schema.encoding == 'ros2msg':
             typs.update(get_types_from_msg(text, schema.name))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as dt
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ibr_ros.bag.detect import COMPRESSED_IMAGE, IMAGE
 from ibr_ros.bag.reader import open_bag
@@ -109,12 +109,12 @@ def _size(path: Path) -> int:
 
 
 def _image_details(message: BagMessage) -> ImageDetails:
-    msg = message.msg
+    msg: Any = message.msg  # a decoded Image or CompressedImage
     if message.msgtype == IMAGE:
-        return ImageDetails(int(msg.width), int(msg.height), str(msg.encoding))  # type: ignore[attr-defined]
-    data = bytes(msg.data)  # type: ignore[attr-defined]
+        return ImageDetails(int(msg.width), int(msg.height), str(msg.encoding))
+    data = bytes(msg.data)
     width, height = image_dimensions(data) or (None, None)
-    return ImageDetails(width, height, str(msg.format))  # type: ignore[attr-defined]
+    return ImageDetails(width, height, str(msg.format))
 
 
 _JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}

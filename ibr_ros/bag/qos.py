@@ -14,7 +14,7 @@ automatic).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, cast, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import yaml
 
@@ -59,12 +59,13 @@ class OfferedQos:
             raise ValueError(f'depth {self.depth!r} is not a non-negative integer')
 
     @classmethod
-    def from_profile(cls, profile: object) -> OfferedQos:
+    def from_profile(cls, profile: Any) -> OfferedQos:
         """The policies of an rclpy ``QoSProfile`` (its enum values are rmw's, as version 8 stores them)."""
         values = {policy: getattr(profile, policy).value for policy in _POLICIES}
         return cls(
+            # _name returns one of the policy's literal names, and __post_init__ checks them again.
             **{policy: _name(policy, value) for policy, value in values.items()},  # type: ignore[arg-type]
-            depth=int(profile.depth),  # type: ignore[attr-defined]
+            depth=int(profile.depth),
         )
 
     def __str__(self) -> str:
@@ -118,7 +119,7 @@ def parse_offered_qos(value: object) -> tuple[OfferedQos, ...]:
         try:
             policies = {policy: _name(policy, item[policy]) for policy in _POLICIES}
             depth = item.get('depth', 0) if policies['history'] == 'keep_all' else item['depth']
-            profiles.append(OfferedQos(**policies, depth=depth))  # type: ignore[arg-type]
+            profiles.append(OfferedQos(**policies, depth=depth))  # type: ignore[arg-type]  # names from _name
         except KeyError as exc:
             raise ValueError(f'profile {i}: no {exc.args[0]}') from None
         except ValueError as exc:
@@ -132,5 +133,5 @@ def _name(policy: str, value: object) -> str:
     if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(names):
         return names[value]
     if isinstance(value, str) and value.lower() in names:
-        return cast('str', value.lower())
+        return value.lower()
     raise ValueError(f'{policy} {value!r} is not one of {", ".join(names)} (or 0-{len(names) - 1})')

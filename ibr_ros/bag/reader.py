@@ -30,7 +30,16 @@ if TYPE_CHECKING:
     from ibr_ros.bag._sources import Source
     from ibr_ros.bag.qos import OfferedQos
 
-__all__ = ['TYPESTORE', 'BagMessage', 'BagReader', 'Storage', 'TopicInfo', 'find_bags', 'open_bag']
+__all__ = [
+    'TYPESTORE',
+    'BagMessage',
+    'BagReader',
+    'Storage',
+    'TopicInfo',
+    'find_bags',
+    'open_bag',
+    'same_definition',
+]
 
 log = logging.getLogger(__name__)
 
@@ -277,7 +286,7 @@ def _make_codec(source: Source, msgtype: str) -> _Codec:
     own = source.typestore
     known, has_own = msgtype in TYPESTORE.types, msgtype in own.types
     if not source.is_ros1:
-        if known and (not has_own or _same_definition(own, msgtype)):
+        if known and (not has_own or same_definition(own, msgtype)):  # None (cannot tell): the bag's
             return _Codec('cdr', None, partial(TYPESTORE.deserialize_cdr, typename=msgtype))
         return _Codec('cdr', None, partial(own.deserialize_cdr, typename=msgtype) if has_own else None)
     if known and has_own:
@@ -287,11 +296,13 @@ def _make_codec(source: Source, msgtype: str) -> _Codec:
     return _Codec('ros1', None, partial(own.deserialize_ros1, typename=msgtype) if has_own else None)
 
 
-def _same_definition(own: Typestore, msgtype: str) -> bool:
+def same_definition(own: Typestore, msgtype: str) -> bool | None:
+    """Whether a bag's typestore ``own`` defines ``msgtype`` as ROS 2 Jazzy does (same RIHS01 hash);
+    None when that cannot be told (a definition that cannot be hashed, e.g. incomplete)."""
     try:
         return own.hash_rihs01(msgtype) == TYPESTORE.hash_rihs01(msgtype)
     except Exception:  # incomplete definitions cannot be hashed
-        return False
+        return None
 
 
 def _ros1_to_jazzy(own: Typestore, msgtype: str) -> Callable[[bytes], bytes]:

@@ -13,7 +13,7 @@ def run(args: argparse.Namespace) -> int:
     """Print each bag's summary; an unreadable bag is one error line on stderr and exit status 2."""
     from ibr_ros.bag.info import bag_info, format_bag_info
 
-    infos = []
+    infos: list[object] = []
     failed = False
     for path in args.paths:
         try:

@@ -9,13 +9,25 @@ from pathlib import Path
 from ibr_ros.errors import UserError
 
 
-def _overrides(items: list[str]) -> dict[str, dict[str, str]]:
-    out: dict[str, dict[str, str]] = {}
+def _overrides(items: list[str]) -> dict[str, dict[str, object]]:
+    """``NODE.PARAM=VALUE`` items as ``{node: {param: value}}``; VALUE is read as YAML (as ``-p``) and
+    checked against the node's parameter table (an integer for a double parameter becomes a double)."""
+    import yaml
+
+    from ibr_ros.node_config import TABLES
+
+    out: dict[str, dict[str, object]] = {}
     for item in items:
-        key, sep, value = item.partition('=')
+        key, sep, text = item.partition('=')
         node, dot, param = key.partition('.')
         if not sep or not dot or not node or not param:
             raise UserError(f'--set expects NODE.PARAM=VALUE, got {item!r}')
+        try:
+            value = yaml.safe_load(text) if text else ''
+        except yaml.YAMLError:
+            value = text
+        if node in TABLES:
+            value = TABLES[node].values({param: value}, where=f'{node}.')[param]
         out.setdefault(node, {})[param] = value
     return out
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from collections.abc import Callable
 from pathlib import Path
 
 UNITS = {
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
     )
     with contextlib.ExitStack() as stack:
-        bars: dict[str, object] = {}
+        bars: dict[str, Callable[[int, int | None], None]] = {}
 
         def progress(stage: str, done: int, total: int) -> None:
             if stage not in bars:
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
                 bars[stage] = stack.enter_context(
                     progress_bar(stage, unit=UNITS.get(stage, 'item'), enabled=args.progress)
                 )
-            bars[stage](done, total)  # type: ignore[operator]
+            bars[stage](done, total)
 
         summary = process_bag(Path(args.bag), Path(args.out), options, progress)
     print((Path(args.out) / 'summary.md').read_text(), end='')

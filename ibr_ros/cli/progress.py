@@ -12,12 +12,12 @@ from tqdm import tqdm
 @contextmanager
 def progress_bar(
     desc: str, *, unit: str = 'item', enabled: bool | None = None
-) -> Iterator[Callable[[int, int], None]]:
-    """Yield a ``progress(done, total)`` callback drawing one tqdm bar on stderr."""
+) -> Iterator[Callable[[int, int | None], None]]:
+    """Yield a ``progress(done, total)`` callback drawing one tqdm bar on stderr (total None: unknown)."""
     show = sys.stderr.isatty() if enabled is None else enabled
     bar: tqdm | None = None
 
-    def update(done: int, total: int) -> None:
+    def update(done: int, total: int | None) -> None:
         nonlocal bar
         if not show:
             return

@@ -13,6 +13,7 @@ import re
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
@@ -86,9 +87,9 @@ def _text(value: object) -> str | None:
     return s or None
 
 
-def _float(value: object) -> float | None:
+def _float(value: Any) -> float | None:
     try:
-        f = float(value)  # type: ignore[arg-type]
+        f = float(value)
     except (TypeError, ValueError, ZeroDivisionError):
         return None
     return f if math.isfinite(f) else None
@@ -115,9 +116,9 @@ def _capture_time_ns(exif_ifd: dict, base: dict) -> int | None:
     return ns
 
 
-def _dms(value: object, ref: object, negative: str) -> float | None:
+def _dms(value: Any, ref: object, negative: str) -> float | None:
     try:
-        d, m, s = (float(x) for x in value)  # type: ignore[union-attr]
+        d, m, s = (float(x) for x in value)
     except (TypeError, ValueError, ZeroDivisionError):
         return None
     deg = d + m / 60.0 + s / 3600.0
@@ -161,10 +162,11 @@ def read_photo_metadata(path: Path) -> PhotoMetadata:
         alt = _float(dji.get('AbsoluteAltitude'))
 
     gimbal = None
-    if all(k in dji for k in ('GimbalYawDegree', 'GimbalPitchDegree', 'GimbalRollDegree')):
-        angles = [_float(dji[k]) for k in ('GimbalYawDegree', 'GimbalPitchDegree', 'GimbalRollDegree')]
-        if all(a is not None for a in angles):
-            gimbal = GimbalAttitude(*angles)  # type: ignore[arg-type]
+    keys = ('GimbalYawDegree', 'GimbalPitchDegree', 'GimbalRollDegree')
+    if all(k in dji for k in keys):
+        yaw, pitch, roll = (_float(dji[k]) for k in keys)
+        if yaw is not None and pitch is not None and roll is not None:
+            gimbal = GimbalAttitude(yaw, pitch, roll)
 
     exif_width = exif_ifd.get(_TAG_EXIF_WIDTH)
     return PhotoMetadata(
@@ -215,5 +217,5 @@ def initial_camera(meta: PhotoMetadata, *, fallback_hfov_deg: float = 70.0) -> t
         )
         cam = PinholeCamera.from_fov(w, h, fallback_hfov_deg)
         return cam, f'assumed horizontal FOV {fallback_hfov_deg:g} deg (no EXIF focal length)'
-    k = [[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]]
+    k = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     return PinholeCamera(w, h, k), how

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 import msg_utils
 from ibr_ros.bag import open_bag
+from ibr_ros.core.depth.colour import colour_depth as colour_inverse_depth
 from ibr_ros.core.depth.fusion import fuse_depth
 from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig
@@ -116,7 +117,7 @@ def load_views(bag: Path, step: int, max_views: int, first: int = 0) -> list[tup
             m.timestamp_ns: msg_utils.pose_stamped_to_matrix(m.msg) for m in reader.messages([TOPICS['pose']])
         }
         infos = {m.timestamp_ns: m.msg for m in reader.messages([TOPICS['camera_info']])}
-        views = []
+        views: list[tuple[int, MvsView]] = []
         for i, m in enumerate(reader.messages([TOPICS['image']])):
             if i < first or (i - first) % step or len(views) >= max_views:
                 continue
@@ -143,13 +144,9 @@ def sparse_points(gts: list, views: list[MvsView], seed: int, per_view: int = 50
 
 
 def colour_depth(d: NDArray, vmin: float, vmax: float) -> NDArray[np.uint8]:
-    """Inverse-depth colouring (turbo), black where unknown."""
-    ok = np.isfinite(d) & (d > 0)
-    inv = np.zeros(d.shape, np.float64)
-    inv[ok] = (1.0 / d[ok] - 1.0 / vmax) / (1.0 / vmin - 1.0 / vmax)
-    img = cv2.applyColorMap(np.clip(inv * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    img[~ok] = 0
-    return img
+    """BGR (for cv2) turbo colouring of inverse depth from ``vmin`` to ``vmax`` (m), black where unknown:
+    :func:`ibr_ros.core.depth.colour.colour_depth`."""
+    return colour_inverse_depth(d, (vmin, vmax), bgr=True)
 
 
 def _grid_png(path: Path, rgb: NDArray, maps: dict[str, NDArray], g: NDArray) -> None:
@@ -227,7 +224,9 @@ def evaluate_depth(
             }
             for name, fn in REMAPS.items()
         }
-        fmm = cv2.inpaint(pruned, (pruned == 0).astype(np.uint8), 5, cv2.INPAINT_TELEA)
+        fmm = np.asarray(
+            cv2.inpaint(pruned, (pruned == 0).astype(np.uint8), 5, cv2.INPAINT_TELEA), np.float32
+        )
         alpha0 = fuse_depth(view.rgb, pruned, r.mono_remapped, sigma=o.refiner.sigma, alpha=0.0)
         preds = {'mvs': pruned, 'fmm': fmm, 'ours_alpha0': alpha0, 'ours': r.fused}
         row['table2_holes'] = {m: depth_metrics(p, gt, hole) for m, p in preds.items()}

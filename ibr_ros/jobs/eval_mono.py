@@ -34,6 +34,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
@@ -189,6 +190,10 @@ def _turbo(x: NDArray, valid: NDArray[np.bool_]) -> NDArray[np.uint8]:
     return img
 
 
+def _bgr(rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    return cast('NDArray[np.uint8]', cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))  # cv2's stubs give no dtypes
+
+
 def _label(tiles: list[NDArray[np.uint8]], names: list[str]) -> NDArray[np.uint8]:
     for t, name in zip(tiles, names, strict=True):
         cv2.putText(t, name, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
@@ -198,10 +203,10 @@ def _label(tiles: list[NDArray[np.uint8]], names: list[str]) -> NDArray[np.uint8
 def _sample_png(path: Path, s: MonoSample, maps: dict[str, NDArray]) -> None:
     mask = np.isfinite(s.depth)
     inv = lambda d: np.where(d > 0, 1.0 / np.maximum(d, 1e-6), 0.0)  # noqa: E731
-    sky = cv2.cvtColor(s.rgb, cv2.COLOR_RGB2BGR)
+    sky = _bgr(s.rgb)
     sky[maps['sky']] = (0.5 * sky[maps['sky']] + (127, 0, 127)).astype(np.uint8)
     tiles = [
-        cv2.cvtColor(s.rgb, cv2.COLOR_RGB2BGR),
+        _bgr(s.rgb),
         _turbo(maps['g'].astype(np.float64), np.ones_like(mask)),
         sky,
         _turbo(inv(s.depth), mask),

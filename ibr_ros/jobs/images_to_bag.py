@@ -146,7 +146,7 @@ def images_to_bag(
             bag.write(TOPICS['image'], img, stamp)
             info = msg_utils.pinhole_to_camera_info(camera, header=header, flavor='rosbags')
             bag.write(TOPICS['camera_info'], info, stamp)
-            if meta.has_gps:
+            if meta.latitude_deg is not None and meta.longitude_deg is not None:  # meta.has_gps
                 fix = msg_utils.GeoFix(
                     stamp_ns=stamp,
                     frame_id=FRAME_ID,

@@ -65,8 +65,8 @@ def random_scene_config(seed: int) -> SceneConfig:
         tree_density=float(rng.uniform(0.0, 2.5)),
         sun_azimuth_deg=float(rng.uniform(0.0, 360.0)),
         sun_elevation_deg=float(rng.uniform(12.0, 75.0)),
-        sky_zenith_rgb=tuple(float(v) for v in zen),
-        sky_horizon_rgb=tuple(float(v) for v in hor),
+        sky_zenith_rgb=(float(zen[0]), float(zen[1]), float(zen[2])),
+        sky_horizon_rgb=(float(hor[0]), float(hor[1]), float(hor[2])),
         cloud_cover=float(rng.uniform(0.0, 1.0)),
         hills=bool(rng.random() < 0.75),
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -151,7 +152,7 @@ def register_bag(
         for m in reader.messages(names):
             if m.topic == topics.image:
                 if n_seen in wanted:
-                    msg = m.msg
+                    msg: Any = m.msg
                     images.append(msg_utils.camera_image_to_rgb(msg))
                     stamps.append(msg_utils.stamp_to_ns(msg.header.stamp))
                 n_seen += 1

@@ -22,6 +22,7 @@ import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -187,7 +188,7 @@ def load_sidecar(bag: Path) -> tuple[SceneConfig, dict[str, object]]:
     path = Path(bag) / 'synth.json'
     try:
         doc = json.loads(path.read_text())
-        fields = {k: tuple(v) if isinstance(v, list) else v for k, v in doc['scene'].items()}
+        fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in doc['scene'].items()}
         return SceneConfig(**fields), dict(doc['flight'])
     except FileNotFoundError as exc:
         raise UserError(f'{bag}: no synth.json: not a synthetic bag made by `ibr bag synth`') from exc

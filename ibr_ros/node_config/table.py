@@ -19,13 +19,62 @@ from typing import Generic, TypeVar
 
 from ibr_ros.errors import UserError
 
-__all__ = ['Param', 'ParamTable', 'Topic', 'Value']
+__all__ = ['Param', 'ParamTable', 'Topic', 'Value', 'Values']
 
 #: A parameter value: the ROS parameter types the nodes use.
 Value = bool | int | float | str | list[float] | list[str]
 C = TypeVar('C')
 
 _KINDS: dict[type, str] = {bool: 'bool', int: 'int', float: 'double', str: 'string', list: 'list'}
+
+
+class Values(dict[str, Value]):
+    """A node's checked parameter values, with typed reads for the table's ``build`` function.
+
+    A read of the wrong type is a programming error (the table checked every value): TypeError.
+    """
+
+    def number(self, name: str) -> float:
+        """A double (or integer) parameter as a float."""
+        v = self[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise TypeError(f'parameter {name} is not a number: {v!r}')
+        return float(v)
+
+    def integer(self, name: str) -> int:
+        """An integer parameter."""
+        v = self[name]
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise TypeError(f'parameter {name} is not an integer: {v!r}')
+        return v
+
+    def text(self, name: str) -> str:
+        """A string parameter."""
+        v = self[name]
+        if not isinstance(v, str):
+            raise TypeError(f'parameter {name} is not a string: {v!r}')
+        return v
+
+    def flag(self, name: str) -> bool:
+        """A bool parameter."""
+        v = self[name]
+        if not isinstance(v, bool):
+            raise TypeError(f'parameter {name} is not a bool: {v!r}')
+        return v
+
+    def numbers(self, name: str) -> list[float]:
+        """A double-array parameter."""
+        v = self[name]
+        if not isinstance(v, list):
+            raise TypeError(f'parameter {name} is not a list: {v!r}')
+        return [float(x) for x in v]
+
+    def texts(self, name: str) -> list[str]:
+        """A string-array parameter."""
+        v = self[name]
+        if not isinstance(v, list):
+            raise TypeError(f'parameter {name} is not a list: {v!r}')
+        return [str(x) for x in v]
 
 
 @dataclass(frozen=True)
@@ -125,7 +174,7 @@ class ParamTable(Generic[C]):
     node: str
     summary: str
     params: tuple[Param, ...]
-    build: Callable[[Mapping[str, Value]], C]
+    build: Callable[[Values], C]
     subscribes: tuple[Topic, ...] = ()
     publishes: tuple[Topic, ...] = ()
     services: tuple[Topic, ...] = field(default=())
@@ -145,18 +194,21 @@ class ParamTable(Generic[C]):
     def names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.params)
 
-    def defaults(self) -> dict[str, Value]:
+    def defaults(self) -> Values:
         """Every parameter's default (lists copied)."""
-        return {p.name: list(p.default) if isinstance(p.default, list) else p.default for p in self.params}
+        out = Values()
+        for p in self.params:
+            out[p.name] = p.default.copy() if isinstance(p.default, list) else p.default
+        return out
 
-    def values(self, given: Mapping[str, object] | None = None, *, where: str = '') -> dict[str, Value]:
+    def values(self, given: Mapping[str, object] | None = None, *, where: str = '') -> Values:
         """The defaults updated by ``given``, each checked; an unknown name is a :class:`UserError`."""
         out = self.defaults()
         for name, value in (given or {}).items():
             try:
                 param = self[name]
             except KeyError:
-                raise UserError(f'{where}{name!r} is not a parameter of {self.node}') from None
+                raise UserError(f'{name!r} is not a parameter of {self.node}') from None
             out[name] = param.check(value, where)
         return out
 

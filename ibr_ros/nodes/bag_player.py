@@ -1,44 +1,17 @@
 """``bag_player``: replays a bag with its original message types and publishes ``/clock``.
 
-Reads whatever :func:`ibr_ros.bag.open_bag` reads (rosbag2 directory, ``.mcap``, ``.db3``, ROS 1
-``.bag``; ROS 1 messages arrive converted to ROS 2 CDR) and publishes every message's serialised
-bytes unchanged on the bag's topic (after ``remap``). Topics whose type has no Python message class
-installed, or whose data is not Jazzy CDR, are skipped with a warning.
+Topics, parameters and behaviour: ``doc/nodes.md`` (generated from
+:data:`ibr_ros.node_config.BAG_PLAYER`); what is played and with which QoS:
+:class:`ibr_ros.bag.playback.PlaybackPolicy`. This node does the ROS side: publishers with those
+QoS, pacing on the wall clock, ``/clock``, waiting for subscribers and acknowledgements.
 
-QoS per topic (logged at start): reliable (which reaches best effort and reliable subscribers alike)
-and volatile with ``qos_depth``, unless the bag records the QoS its publishers offered (rosbag2's
-``offered_qos_profiles``, which ``ibr process`` and ``ros2 bag record`` write; ``use_recorded_qos``):
-then transient local where they offered it, with a history of the recorded depth or the topic's
-message count if larger, at most ``max_durable_depth``, so that a subscriber that asks for transient
-local (e.g. a ``view_renderer`` for ``keyframes/*``) matches and, joining late, still gets the topic's
-history. Recorded best effort is played reliable all the same; publishers that offered different
-reliability or durability fall back to the default, as in ``ros2 bag play``. ``topic_qos`` overrides
-per bag topic: ``'TOPIC:=POLICY[,POLICY...]'`` with ``reliable``, ``best_effort``, ``volatile``,
-``transient_local``, ``depth=N``. Transient-local history lives as long as the player: ``linger_s``
-keeps it after the bag is done.
-
-Every message is checked before it goes out: a payload that does not decode as its topic's type
-(empty, no CDR header, truncated, lengths past its end, ...) is never published (a 0-byte payload
-would never be acknowledged and stall the topic); it is counted by reason (``empty``,
-``encapsulation``, ``corrupt``), logged (throttled, with topic, bag time and the decode error) and
-summed up when the bag is done. Types ROS 2 Jazzy knows are decoded with the rosbags CDR reader (no
-copy of array data: ~0.04 ms for a 640x360 rgb8 Image), others with rclpy. The rosbags reader is
-stricter than Fast CDR on three points, also skipped: strings without terminator or not UTF-8, and
+Publishers of image topics are created last, so a subscriber that discovers this player's image
+publisher already knows its other topics (DDS announces endpoints in order). At rate 0 at most
+``flow_window`` messages per topic go unacknowledged, so reliable subscribers receive everything and
+the topics stay within that window of each other. Types ROS 2 Jazzy knows are decoded (checked before
+publishing) with the rosbags CDR reader (no copy of array data), others with rclpy; the rosbags reader
+is stricter than Fast CDR on three points, also skipped: strings without terminator or not UTF-8, and
 more than 3 bytes after the message.
-
-Messages are paced on the wall clock: bag time since ``start_offset``, divided by ``rate`` (0 = as
-fast as possible). ``/clock`` (``rosgraph_msgs/Clock``) carries the playback's bag time at
-``clock_rate_hz``, never ahead of the next message, so nodes can run with ``use_sim_time``. With
-``wait_for_subscribers`` > 0 playback starts once every topic of ``wait_topics`` (published names;
-empty = every played topic) has that many matched subscriptions (``wait_timeout_s`` 0: however long
-that takes). Publishers of image topics are created last, so a subscriber that discovers this
-player's image publisher already knows its other topics (DDS announces endpoints in order). DDS
-repairs what a reliable subscriber missed (within a heartbeat period, 3 s with Fast DDS) as long as
-the publisher still holds it: at rate > 0 ``qos_depth`` should cover a few seconds of each topic; at
-rate 0 the player lets at most ``flow_window`` messages per topic go unacknowledged, so reliable
-subscribers receive everything and the topics stay within that window of each other. The process
-exits 0 when the bag is done (unless ``loop``), after reliable subscribers acknowledged everything
-or ``ack_timeout_s``; a bag or parameter that cannot be used is one error line and exit code 2.
 """
 
 from __future__ import annotations
@@ -48,14 +21,12 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import partial
-from typing import Literal
 
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -63,101 +34,35 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
 import msg_utils
-from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, TopicInfo, open_bag
+from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, open_bag
+from ibr_ros.bag.playback import PlayQos, play_window, undecodable
 from ibr_ros.errors import UserError
-from ibr_ros.nodes.common import EXIT_BAD_CONFIG, BadInput, declare, reliable_qos, run_node
+from ibr_ros.node_config.bag_player import BAG_PLAYER
+from ibr_ros.nodes.common import EXIT_BAD_CONFIG, BadInput, declare_table, reliable_qos, run_node
 from msg_utils.flavor import message_class
 
 EXIT_BAD_INPUT = EXIT_BAD_CONFIG  # a bag that cannot be played exits like a rejected parameter
 
-#: Encapsulation headers of plain CDR (big, little endian): what ROS 2 Jazzy publishes and records.
-CDR_HEADERS = (b'\x00\x00', b'\x00\x01')
+
+def qos_profile(qos: PlayQos) -> QoSProfile:
+    """The rclpy profile of ``qos`` (keep last)."""
+    return QoSProfile(
+        history=QoSHistoryPolicy.KEEP_LAST,
+        depth=qos.depth,
+        reliability=QoSReliabilityPolicy.RELIABLE
+        if qos.reliability == 'reliable'
+        else QoSReliabilityPolicy.BEST_EFFORT,
+        durability=QoSDurabilityPolicy.TRANSIENT_LOCAL
+        if qos.durability == 'transient_local'
+        else QoSDurabilityPolicy.VOLATILE,
+    )
 
 
-@dataclass(frozen=True)
-class PlayQos:
-    """The QoS a topic is played with, and where it comes from (``default``, ``recorded``, ``override``)."""
-
-    reliability: Literal['reliable', 'best_effort'] = 'reliable'
-    durability: Literal['volatile', 'transient_local'] = 'volatile'
-    depth: int = 100
-    source: str = 'default'
-
-    def profile(self) -> QoSProfile:
-        return QoSProfile(
-            history=QoSHistoryPolicy.KEEP_LAST,
-            depth=self.depth,
-            reliability=QoSReliabilityPolicy.RELIABLE
-            if self.reliability == 'reliable'
-            else QoSReliabilityPolicy.BEST_EFFORT,
-            durability=QoSDurabilityPolicy.TRANSIENT_LOCAL
-            if self.durability == 'transient_local'
-            else QoSDurabilityPolicy.VOLATILE,
-        )
-
-    def __str__(self) -> str:
-        return f'{self.reliability} {self.durability} depth {self.depth} ({self.source})'
-
-
-_POLICY_WORDS = {'reliable', 'best_effort', 'volatile', 'transient_local'}
-
-
-def parse_topic_qos(entries: list[str]) -> dict[str, dict[str, str | int]]:
-    """``['TOPIC:=transient_local,depth=50', ...]`` -> ``{TOPIC: {'durability': ..., 'depth': 50}}``.
-
-    Raises:
-        ValueError: An entry that is not ``TOPIC:=POLICY[,POLICY...]`` with known policies.
-
-    """
-    out: dict[str, dict[str, str | int]] = {}
-    for entry in entries:
-        topic, sep, spec = entry.partition(':=')
-        policies: dict[str, str | int] = {}
-        for word in (w.strip().lower() for w in spec.split(',')):
-            if word in _POLICY_WORDS:
-                policies['reliability' if word in {'reliable', 'best_effort'} else 'durability'] = word
-            elif word.startswith('depth=') and word[6:].isdigit() and int(word[6:]) > 0:
-                policies['depth'] = int(word[6:])
-            else:
-                policies = {}
-                break
-        if not sep or not topic.strip() or not policies:
-            raise ValueError(
-                f"parameter topic_qos: {entry!r} is not of the form 'TOPIC:=POLICY[,POLICY...]' "
-                'with reliable, best_effort, volatile, transient_local, depth=N'
-            )
-        out[topic.strip()] = policies
-    return out
-
-
-def play_qos(
-    info: TopicInfo,
-    *,
-    depth: int,
-    max_durable_depth: int,
-    use_recorded: bool = True,
-    override: dict[str, str | int] | None = None,
-) -> tuple[PlayQos, str]:
-    """The QoS to play ``info``'s topic with (see module docstring) and a note for the log ('' if none)."""
-    qos, notes = PlayQos(depth=depth), []
-    offered = info.offered_qos if use_recorded else ()
-    if len({(q.reliability, q.durability) for q in offered}) > 1:
-        notes.append(f'its publishers offered different QoS ({"; ".join(map(str, offered))}): default')
-    elif offered:
-        durable = offered[0].durability == 'transient_local'
-        qos = replace(qos, durability='transient_local' if durable else 'volatile', source='recorded')
-        if offered[0].reliability == 'best_effort':
-            notes.append('recorded best_effort, played reliable (which reaches best-effort subscribers too)')
-    if override:
-        qos = replace(qos, **{k: v for k, v in override.items() if k != 'depth'}, source='override')  # type: ignore[arg-type]
-    if qos.durability == 'transient_local':
-        wanted = max([info.count, *(q.depth for q in offered)])
-        qos = replace(qos, depth=max(1, min(wanted, max_durable_depth)))
-        if wanted > max_durable_depth:
-            notes.append(f'history of {wanted} capped at max_durable_depth')
-    if override and 'depth' in override:
-        qos = replace(qos, depth=int(override['depth']))
-    return qos, '; '.join(notes)
+def decoder(msgtype: str, cls: type) -> Callable[[bytes], object]:
+    """Deserialiser of ``msgtype`` CDR: rosbags' Jazzy typestore (fast, no array copies), else rclpy."""
+    if msgtype in TYPESTORE.types:
+        return partial(TYPESTORE.deserialize_cdr, typename=msgtype)
+    return partial(deserialize_message, message_type=cls)
 
 
 @dataclass
@@ -174,135 +79,37 @@ class _Out:
     skipped: Counter[str] = field(default_factory=Counter)  # undecodable payloads by reason
 
 
-def decoder(msgtype: str, cls: type) -> Callable[[bytes], object]:
-    """Deserialiser of ``msgtype`` CDR: rosbags' Jazzy typestore (fast, no array copies), else rclpy."""
-    if msgtype in TYPESTORE.types:
-        return partial(TYPESTORE.deserialize_cdr, typename=msgtype)
-    return partial(deserialize_message, message_type=cls)
-
-
-def undecodable(raw: bytes, decode: Callable[[bytes], object]) -> tuple[str, str] | None:
-    """``(reason, error)`` when ``raw`` is not a CDR message that ``decode`` accepts; None when it is."""
-    if not raw:
-        return 'empty', 'payload of 0 bytes'
-    if len(raw) < 4:
-        return 'encapsulation', f'{len(raw)} bytes, shorter than the 4-byte CDR encapsulation header'
-    if (head := bytes(raw[:2])) not in CDR_HEADERS:
-        return 'encapsulation', f'{len(raw)} bytes: encapsulation {head.hex(" ")} is not CDR (00 00 or 00 01)'
-    try:
-        decode(raw)
-    except Exception as exc:  # rosbags SerdeError, rclpy RMWError, ...
-        return 'corrupt', f'{len(raw)} bytes: {exc or type(exc).__name__}'
-    return None
-
-
-def parse_remaps(pairs: list[str]) -> dict[str, str]:
-    """``['from:=to', ...]`` -> ``{from: to}``; raises ValueError on a malformed pair."""
-    remaps: dict[str, str] = {}
-    for pair in pairs:
-        src, sep, dst = pair.partition(':=')
-        if not sep or not src.strip() or not dst.strip():
-            raise ValueError(f"parameter remap: {pair!r} is not of the form 'from:=to'")
-        remaps[src.strip()] = dst.strip()
-    return remaps
-
-
 class BagPlayer(Node):
     """Bag replay node (see module docstring)."""
 
     def __init__(self) -> None:
         super().__init__('bag_player')
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        big = {'limits': (0.0, 1e9)}
-        self.bag_path = str(p('bag', '', 'bag to replay: rosbag2 directory, .mcap, .db3 or ROS 1 .bag'))
-        self.rate = float(p('rate', 1.0, 'playback speed factor; 0 = as fast as possible', **big))
-        self.loop = bool(p('loop', False, 'start again at the end instead of exiting'))
-        self.start_offset = float(p('start_offset', 0.0, 'skip this many seconds of the bag', **big))
-        self.duration = float(p('duration', 0.0, 'play this many seconds; 0 = to the end', **big))
-        topics = p('topics', Parameter.Type.STRING_ARRAY, 'bag topics to play; empty = all')
-        remaps = p('remap', Parameter.Type.STRING_ARRAY, "'from:=to' renames of bag topics")
-        self.publish_clock = bool(p('publish_clock', True, 'publish the bag time on /clock'))
-        clock_hz = float(p('clock_rate_hz', 100.0, '/clock messages per second', limits=(0.1, 1e4)))
-        self.clock_period = 1.0 / clock_hz
-        n_subs = p('wait_for_subscribers', 0, 'start at this many subscriptions per topic', limits=(0, 1000))
-        self.wait_for = int(n_subs)
-        self.wait_timeout = float(p('wait_timeout_s', 30.0, '... or after this long; 0 = never', **big))
-        wait_topics = p('wait_topics', Parameter.Type.STRING_ARRAY, 'topics to wait for; empty = all')
-        self.depth = int(p('qos_depth', 100, 'history depth of the volatile publishers', limits=(1, 1000000)))
-        self.window = int(
-            p('flow_window', 8, 'rate 0: unacknowledged messages per topic at most', limits=(1, 1000000))
-        )
-        use_recorded = bool(p('use_recorded_qos', True, 'offer the QoS recorded in the bag'))
-        max_durable = int(p('max_durable_depth', 1000, 'most transient-local history', limits=(1, 1000000)))
-        topic_qos = p('topic_qos', Parameter.Type.STRING_ARRAY, "'TOPIC:=POLICY,...' QoS of bag topics")
-        linger = p(
-            'linger_s', 0.0, 'keep publishers after the end (s); -1 = until shut down', limits=(-1.0, 1e9)
-        )
-        self.linger = float(linger)
-        self.ack_timeout = float(p('ack_timeout_s', 10.0, 'longest wait for acknowledgements', **big))
-        self.progress_s = float(p('progress_s', 5.0, 'progress log period (s); 0 = off', **big))
-        if not self.bag_path:
+        cfg = BAG_PLAYER.build(declare_table(self, BAG_PLAYER))
+        if not cfg.bag:
             raise UserError('parameter bag is required (-p bag:=PATH)')
-        remap = parse_remaps(list(remaps or []))
-        overrides = parse_topic_qos(list(topic_qos or []))
-
+        self.cfg = cfg
+        self.bag_path = cfg.bag
+        self.rate, self.loop, self.window = cfg.rate, cfg.loop, cfg.flow_window
+        self.linger, self.ack_timeout, self.progress_s = cfg.linger_s, cfg.ack_timeout_s, cfg.progress_s
+        self.wait_for, self.wait_timeout = cfg.wait_for_subscribers, cfg.wait_timeout_s
+        self.clock_period = cfg.clock_period_s
         self.bag: BagReader = open_bag(self.bag_path)  # BagError names the path
-        available = self.bag.topics
-        wanted = list(topics or []) or list(available)
-        if missing := [t for t in wanted if t not in available]:
-            raise UserError(f'{self.bag_path}: no topic {", ".join(missing)} in the bag')
-        if unknown := [t for t in remap if t not in wanted]:
-            self.get_logger().warning(f'remap of topics that are not played: {", ".join(unknown)}')
-        if unknown := [t for t in overrides if t not in wanted]:
-            self.get_logger().warning(f'topic_qos of topics that are not played: {", ".join(unknown)}')
-        self.outs: dict[str, _Out] = {}
+        plan = cfg.playback.plan(self.bag)
+        for warning in plan.warnings:
+            self.get_logger().warning(warning)
         self.bad = BadInput(self)
-        qos_log: dict[str, str] = {}  # topic -> its QoS line
-        is_image = lambda t: available[t].msgtype.endswith(('/Image', '/CompressedImage'))  # noqa: E731
-        for topic in sorted(wanted, key=is_image):  # images last (stable: bag order otherwise)
-            info = available[topic]
-            problem = self._unplayable(info.msgtype, info.serialization_format)
-            if problem:
-                self.get_logger().warning(f'skipping {topic} ({info.msgtype}): {problem}')
-                continue
-            qos, note = play_qos(
-                info,
-                depth=self.depth,
-                max_durable_depth=max_durable,
-                use_recorded=use_recorded,
-                override=overrides.get(topic),
-            )
-            if self.rate == 0 and qos.durability == 'volatile' and qos.depth > self.window:
-                # A full history makes Fast DDS ask for acknowledgements with every message.
-                qos = replace(qos, depth=self.window, source=f'{qos.source}, flow_window at rate 0')
-            qos_log[topic] = f'{topic}: {qos}' + (f'; {note}' if note else '')
-            cls = message_class(info.msgtype)
-            name = remap.get(topic, topic)
-            publisher = self.create_publisher(cls, name, qos.profile())
-            durable = qos.durability == 'transient_local'
-            self.outs[topic] = _Out(name, publisher, decoder(info.msgtype, cls), qos.depth, durable)
-        self.outs = {t: self.outs[t] for t in wanted if t in self.outs}  # bag order again
-        if not self.outs:
-            raise UserError(f'{self.bag_path}: none of the topics can be played')
-        names = {o.name: o for o in self.outs.values()}
-        self.wait_outs = list(self.outs.values())
-        if wait_topics:
-            resolved = {self.resolve_topic_name(t): t for t in wait_topics}
-            known = {self.resolve_topic_name(n): o for n, o in names.items()}
-            if missing := [t for r, t in resolved.items() if r not in known]:
-                raise UserError(
-                    f'parameter wait_topics: {", ".join(missing)} not played (played: {", ".join(names)})'
-                )
-            self.wait_outs = [known[r] for r in resolved]
+        self.outs: dict[str, _Out] = {}
+        for t in plan.topics:  # images last
+            cls = message_class(t.msgtype)
+            publisher = self.create_publisher(cls, t.name, qos_profile(t.qos))
+            durable = t.qos.durability == 'transient_local'
+            self.outs[t.topic] = _Out(t.name, publisher, decoder(t.msgtype, cls), t.qos.depth, durable)
+        self.outs = {t: self.outs[t] for t in plan.bag_order}
+        self.wait_outs = [self.outs[t] for t in plan.waited(cfg.wait_topics, self.resolve_topic_name)]
         self.clock_pub = (
-            self.create_publisher(Clock, '/clock', reliable_qos(10)) if self.publish_clock else None
+            self.create_publisher(Clock, '/clock', reliable_qos(10)) if cfg.publish_clock else None
         )
-        self.first_ns = self.bag.start_ns + round(self.start_offset * 1e9)
-        self.stop_ns = (
-            self.first_ns + round(self.duration * 1e9) if self.duration > 0 else self.bag.end_ns + 1
-        )
-        if self.first_ns > self.bag.end_ns:
-            raise UserError(f'{self.bag_path}: start_offset {self.start_offset} s is past the end of the bag')
+        self.first_ns, self.stop_ns = play_window(self.bag, cfg.start_offset_s, cfg.duration_s)
         self._last_clock_wall = -1.0
         self._clock_ns = -1
         self.stopping = threading.Event()
@@ -314,25 +121,8 @@ class BagPlayer(Node):
             + f' at rate {self.rate:g}'
             + (' (as fast as possible)' if self.rate == 0 else '')
         )
-        self.get_logger().info('QoS: ' + ', '.join(qos_log[t] for t in self.outs))
-
-    def _unplayable(self, msgtype: str, serialization_format: str) -> str:
-        """Why a topic of ``msgtype`` cannot be replayed as is; '' when it can."""
-        if serialization_format != 'cdr':
-            return f'{serialization_format} data of a type ROS 2 Jazzy does not know'
-        try:
-            message_class(msgtype)
-        except msg_utils.MessageError:
-            return 'no Python message class installed'
-        if self.bag.storage == 'ros1':  # converted to Jazzy's definition by the reader
-            return ''
-        try:
-            own = self.bag.typestore
-            if msgtype in own.types and own.hash_rihs01(msgtype) != TYPESTORE.hash_rihs01(msgtype):
-                return 'the bag defines the type differently from ROS 2 Jazzy'
-        except Exception:  # definitions that cannot be hashed: trust the type name
-            pass
-        return ''
+        by_topic = {t.topic: str(t) for t in plan.topics}
+        self.get_logger().info('QoS: ' + ', '.join(by_topic[t] for t in self.outs))
 
     # -- playback thread ---------------------------------------------------------------------
 

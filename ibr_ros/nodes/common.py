@@ -23,6 +23,7 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (
     QoSDurabilityPolicy,
     QoSHistoryPolicy,
@@ -30,14 +31,13 @@ from rclpy.qos import (
     QoSReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 import msg_utils
 from ibr_ros.core.flight.stamps import StampAssembler
-from ibr_ros.core.geometry.camera import CameraError
-from ibr_ros.core.geometry.transforms import GeometryError
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Value
+from ibr_ros.node_config.table import Param, ParamTable, Values
 
 __all__ = [
     'BAD_MESSAGE',
@@ -58,8 +58,8 @@ __all__ = [
     'subscribe_field',
 ]
 
-#: What converting a malformed message raises (msg_utils, camera and pose validation).
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
+#: What converting a malformed message raises: :data:`msg_utils.CONVERSION_ERRORS` (the nodes' name).
+BAD_MESSAGE = msg_utils.CONVERSION_ERRORS
 
 #: Exit status of a node whose parameters are rejected at start-up.
 EXIT_BAD_CONFIG = 2
@@ -115,8 +115,9 @@ def declare(
     *,
     read_only: bool = True,
     limits: tuple[float, float] | None = None,
-) -> object:
-    """Declare a parameter with a descriptor (a numeric range when ``limits`` is given); return its value."""
+) -> Any:
+    """Declare a parameter with a descriptor (a numeric range when ``limits`` is given); return its value
+    (of the default's type: rclpy refuses another)."""
     desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
     if limits is not None and isinstance(default, bool):
         raise ValueError(f'parameter {name}: limits make no sense for a bool')
@@ -127,7 +128,7 @@ def declare(
     return node.declare_parameter(name, default, desc).value
 
 
-def declare_table(node: Node, table: ParamTable[Any]) -> dict[str, Value]:
+def declare_table(node: Node, table: ParamTable[Any]) -> Values:
     """Declare every parameter of ``table`` with its descriptor (range, choices, read-only unless
     dynamic); the values given (params file, ``-p``), checked by the table (UserError naming one)."""
     values = {p.name: _declare_param(node, p) for p in table.params}
@@ -144,6 +145,9 @@ def _declare_param(node: Node, p: Param) -> object:
         desc.floating_point_range = [
             FloatingPointRange(from_value=float(p.range[0]), to_value=float(p.range[1]), step=0.0)
         ]
+    if p.kind == 'list' and not p.default:  # rclpy would type [] as a byte array: a string array
+        value = node.declare_parameter(p.name, Parameter.Type.STRING_ARRAY, desc).value
+        return [] if value is None else value
     return node.declare_parameter(p.name, p.default, desc).value
 
 
@@ -180,7 +184,7 @@ def subscribe_field(
     convert: Callable[[Any], Any],
     put: Callable[[int, str, Any], None],
     bad: BadInput,
-) -> object:
+) -> Subscription:
     """Subscribe ``topic``; each message goes through ``convert`` and on to ``put(stamp_ns, field, value)``.
 
     A message that ``convert`` rejects (:data:`BAD_MESSAGE`) is counted and logged by ``bad`` under

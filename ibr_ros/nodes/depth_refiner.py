@@ -1,79 +1,15 @@
 """``depth_refiner``: MVS + refined depth for every keyframe, shardable over several processes.
 
-Subscribes (reliable, transient local): ``keyframes/image`` (``sensor_msgs/Image``),
-``keyframes/camera_info`` and ``keyframes/pose`` (``geometry_msgs/PoseStamped``), matched by
-identical header stamps.
+Topics, parameters and behaviour: the ``depth_refiner`` section of ``doc/nodes.md`` (generated from
+:data:`~ibr_ros.node_config.depth_refiner.DEPTH_REFINER`). The policy is in core:
+:class:`~ibr_ros.core.depth.schedule.RefineScheduler` (which keyframe, when, with which
+neighbours; shared with ``ibr process``), :func:`~ibr_ros.core.depth.refine.refine_job` (MVS, then
+refinement), :class:`~ibr_ros.core.registration.trigger.SfmTrigger` (SfM mode) and
+:class:`~ibr_ros.core.flight.status.ShardMembership` (live workers). This node converts messages,
+keeps the keyframes and publishes.
 
-Also subscribes ``keyframes/status`` (``diagnostic_msgs/DiagnosticStatus``, latched; the
-frame_subsampler's :class:`~ibr_ros.core.flight.status.FlightStatus`): whether the flight has poses (SfM mode
-below) and whether the camera stream ended.
-
-A keyframe is refined once :func:`~ibr_ros.core.depth.mvs.select_neighbours` finds ``min_neighbours``
-source views for it among the keyframes received so far, or, with at least one neighbour, once the
-status says the camera stream ended (the end of a flight; or, with ``flush_after_s`` > 0, when that
-long passed without a new keyframe). With ``refine_again`` it is
-refined again whenever more neighbours (up to ``max_neighbours``) become available. This policy is
-:class:`~ibr_ros.core.depth.schedule.RefineScheduler`, shared with ``ibr process``. Refinement:
-:func:`~ibr_ros.core.depth.mvs.compute_depth_maps` on the keyframe and its neighbours, then
-:meth:`~ibr_ros.core.depth.refine.DepthRefiner.refine_from_mvs`.
-
-Depth range of the MVS sweep: ``depth_range`` ``[near, far]`` (m) when set; else
-``[near_ratio, far_ratio] x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
-when set, else the median distance along the keyframe's optical axis to where it passes closest
-to the optical axes of the other keyframes (axes 3-90 deg apart, the point in front of both
-cameras; oblique and orbit flights), else (parallel axes, e.g. a nadir survey) 12.5 x the mean
-distance to the two nearest keyframes (the inverse of the frame_subsampler's 0.08 baseline
-ratio), with a warning to set ``scene_depth_m``.
-
-Monocular depth (fills the MVS holes after the per-view LUT remap): ``mono`` ``'plane'`` (default,
-:class:`~ibr_ros.core.depth.GroundPlanePrior`, no model) or ``'onnx'`` with ``mono_model``: ``'ibr_mono'``
-(the shipped ``ibr_ros/models/ibr_mono.onnx``), a model of ``ibr models list`` fetched into the cache,
-or a path to an ``.onnx`` file; ``mono_preset`` names its I/O convention in
-:data:`~ibr_ros.core.depth.mono.PRESETS` (``''``: the named model's own; required for a path). Sky mask:
-``sky`` ``'fallback'`` (default; horizon + colour cues + no MVS depth), ``'onnx'`` with ``sky_model``
-/ ``sky_preset`` likewise (:data:`~ibr_ros.core.depth.sky.SKY_PRESETS`; ``'ibr_mono'`` is the shipped
-model's sky head) or ``'none'``. A bad value (unknown name or preset, missing or unloadable file)
-stops the node at start-up with one error line naming the parameter and value (exit status 2).
-
-Publishes (reliable, transient local): ``keyframes/depth`` (``sensor_msgs/Image`` ``32FC1``
-metres, REP-118: NaN unknown) and ``keyframes/depth/camera_info``, both with the keyframe's stamp,
-and, with ``mirror_model`` (default), the keyframe's ``keyframes/image``, ``keyframes/camera_info``
-and ``keyframes/pose`` too: the model then outlives the frame_subsampler (a renderer restarted after
-it died still gets everything). Depth published by another refiner is mirrored the same way, once.
-With ``publish_debug`` (reliable, volatile): ``depth/mvs``, ``depth/mono_remapped`` (``32FC1``),
-``depth/sky_mask`` (``mono8``, 255 = sky), ``depth/preview`` and ``depth/mvs/preview`` (``rgb8``
-turbo-coloured inverse depth).
-
-Sharding: with ``num_workers`` > 1 every process receives all keyframes (they are everybody's
-neighbours) but refines only those whose stamp hashes to its ``worker_index``
-(:func:`~ibr_ros.core.depth.schedule.shard_of`, independent of arrival order), so each keyframe is
-refined once. Workers publish a heartbeat on ``refiners/heartbeat`` (``DiagnosticStatus``, every
-``worker_lease_s`` / 3 s); a worker not heard from for ``worker_lease_s`` is dead and its
-unrefined keyframes go to the live ones (:class:`~ibr_ros.core.flight.status.ShardMembership`). Every worker
-subscribes ``keyframes/depth``: a keyframe whose depth is already published (by a live worker, or
-mirrored from a dead one) is never refined again, so a restarted worker picks up where it stopped.
-
-SfM mode (keyframes without poses): with ``sfm_mode`` ``'always'``, or ``'auto'`` once the
-frame_subsampler's status says the flight has no poses (never on a timer: until the status comes,
-keyframes wait for their poses, however late), keyframes are registered by
-:class:`~ibr_ros.core.registration.SfmSession` (pycolmap on the CPU, the CameraInfo intrinsics as the
-prior, images downscaled to ``sfm_max_side``) instead of waiting for ``keyframes/pose``, which is
-then ignored (it carries this node's own poses). The first registration runs once
-``sfm_min_keyframes`` keyframes are there, the next ones after every ``sfm_every`` new keyframes and
-when the flight is flushed (see above). Each newly registered keyframe's pose is published once on
-``keyframes/pose`` (frame_id ``sfm``, stamp = the keyframe's; later registrations are aligned to the
-earlier ones, so the published poses keep one frame) and the keyframe is then refined like a posed
-one. The ``sfm`` frame: z up (the ground plane of the sparse points), origin on the ground below the
-first registered keyframe, x its viewing direction; unit: the distance between the first two
-registered keyframes, or metres with ``sfm_scale`` (``'baseline'``: that distance, ``'altitude'``:
-the first keyframe's height above the ground, ``'depth'``: the median depth of the sparse points) =
-``sfm_scale_m``. Depth maps are in the same unit; without a scale, ``depth_range`` and
-``scene_depth_m`` (metres) are ignored. SfM runs on the worker thread; with ``num_workers`` > 1,
-``'always'`` is a start-up error (one registration per graph) and ``'auto'`` acts as ``'off'``. With
-``'off'`` frames without a pose are not refined. Registration runs again when the camera stream
-ended.
-
-The heavy work runs on one worker thread; the executor thread only stores messages.
+The heavy work (MVS, refinement, SfM registration) runs on one worker thread; the executor thread
+only stores messages.
 """
 
 from __future__ import annotations
@@ -82,10 +18,10 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from functools import partial
 
-import cv2
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -93,22 +29,25 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
+from ibr_ros.core.depth.colour import colour_depth
 from ibr_ros.core.depth.mono import MonoModelError
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
-from ibr_ros.core.depth.refine import DepthRefiner, RefineError
-from ibr_ros.core.depth.schedule import RefineJob, RefineScheduler, ScheduleConfig, parse_depth_range
+from ibr_ros.core.depth.mvs import MvsView
+from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig, refine_job
+from ibr_ros.core.depth.schedule import RefineJob, RefineScheduler
 from ibr_ros.core.flight.status import FlightStatus, ShardMembership
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.registration.sfm import SfmError
 from ibr_ros.core.registration.sfm_session import SfmSession
+from ibr_ros.core.registration.trigger import SfmMode, SfmTrigger
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.warmup import warm_up_refiner
-from ibr_ros.node_config.depth_refiner import refiner_config, sfm_settings
+from ibr_ros.node_config.depth_refiner import DEBUG_TOPICS, DEPTH_REFINER
+from ibr_ros.node_config.table import Value
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,
     StampAssembler,
-    declare,
+    declare_table,
     known_depth,
     latched_qos,
     model_qos,
@@ -121,121 +60,35 @@ from ibr_ros.nodes.common import (
 #: Longest wait at shutdown for the worker's current step (an SfM registration of a long flight).
 STOP_TIMEOUT_S = 120.0
 
-DEBUG_TOPICS = ('depth/mvs', 'depth/mono_remapped', 'depth/sky_mask', 'depth/preview', 'depth/mvs/preview')
-
-
-def colourise(depth: np.ndarray) -> np.ndarray:
-    """rgb8 turbo colouring of inverse depth (2-98th percentile), black where unknown."""
-    ok = np.isfinite(depth) & (depth > 0)
-    out = np.zeros((*depth.shape, 3), np.uint8)
-    if not ok.any():
-        return out
-    inv = 1.0 / depth[ok]
-    lo, hi = np.percentile(inv, (2, 98))
-    grey = np.zeros(depth.shape, np.uint8)
-    grey[ok] = np.clip((inv - lo) / max(hi - lo, 1e-12) * 255, 0, 255).astype(np.uint8)
-    out[:] = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
-    out[~ok] = 0
-    return out
-
 
 class DepthRefinerNode(Node):
     """Keyframe depth refinement node (see module docstring)."""
 
     def __init__(self) -> None:
         super().__init__('depth_refiner')
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        self.num_workers = int(
-            p('num_workers', 1, 'refiner processes sharing the keyframes', limits=(1, 1024))
-        )
-        self.worker_index = int(p('worker_index', 0, 'this process: 0 .. num_workers - 1', limits=(0, 1023)))
-        min_neighbours = int(p('min_neighbours', 2, 'neighbours needed to refine', limits=(1, 16)))
-        max_nb = int(p('max_neighbours', 4, 'MVS source views per keyframe', limits=(1, 16)))
-        self.flush_after_s = float(
-            p('flush_after_s', 0.0, 'also flush after this long without keyframes (s), 0 = at the end only',
-              limits=(0.0, 1e6))
-        )  # fmt: skip
-        lease = float(p('worker_lease_s', 3.0, 'a sharded worker silent this long is dead (s)',
-                        limits=(0.1, 1e6)))  # fmt: skip
-        self.mirror = bool(
-            p('mirror_model', True, 'republish the keyframes that have depth (model survives)')
-        )
-        refine_again = bool(p('refine_again', False, 'refine again when more neighbours arrive'))
-        rng = p('depth_range', [0.0, 0.0], 'MVS [near, far] in metres; [0, 0] = automatic')
-        scene_depth = float(p('scene_depth_m', 0.0, 'scene depth hint (m), 0 = estimate', limits=(0.0, 1e6)))
-        near_ratio = float(p('near_ratio', 0.25, 'near = this x scene depth', limits=(1e-3, 1.0)))
-        far_ratio = float(p('far_ratio', 4.0, 'far = this x scene depth', limits=(1.0, 1e4)))
-        self.publish_debug = bool(p('publish_debug', False, 'publish depth/* debug images'))
-        self.max_pending = int(
-            p('max_pending', 30, 'frames waiting for their other messages', limits=(1, 10000))
-        )
-        max_mb = float(p('max_pending_mb', 128.0, 'MiB of pending frames at most', limits=(1.0, 1e6)))
-        mono = str(p('mono', 'plane', "monocular depth: 'plane' (ground-plane prior) or 'onnx' (mono_model)"))
-        mono_model = str(
-            p('mono_model', 'ibr_mono', "'ibr_mono' (shipped), a fetched model or an .onnx path")
-        )
-        mono_preset = str(p('mono_preset', '', "I/O convention of mono_model (a PRESETS name); '' = its own"))
-        sky = str(p('sky', 'fallback', "sky mask: 'fallback' (horizon + colour), 'onnx' (sky_model), 'none'"))
-        sky_model = str(p('sky_model', 'ibr_mono', "with sky 'onnx': 'ibr_mono' (shipped) or an .onnx path"))
-        sky_preset = str(
-            p('sky_preset', '', "I/O convention of sky_model (a SKY_PRESETS name); '' = its own")
-        )
-        self.sfm_mode = str(
-            p('sfm_mode', 'auto', "register keyframes without poses: 'auto', 'always' or 'off'")
-        )
-        self.sfm_min_keyframes = int(
-            p('sfm_min_keyframes', 4, 'keyframes of the first SfM registration', limits=(3, 10000))
-        )
-        self.sfm_every = int(
-            p('sfm_every', 2, 'register again after this many new keyframes', limits=(1, 10000))
-        )
-        sfm_max_side = int(p('sfm_max_side', 640, 'longest image side for SfM (px), 0 = as received',
-                             limits=(0, 100000)))  # fmt: skip
-        sfm_scale = str(p('sfm_scale', 'none', "SfM scale: 'none', 'baseline', 'altitude' or 'depth'"))
-        sfm_scale_m = float(p('sfm_scale_m', 0.0, 'the sfm_scale length in metres', limits=(0.0, 1e7)))
-        scale_hint = sfm_settings(self.sfm_mode, sfm_scale, sfm_scale_m)
-        if self.num_workers > 1 and self.sfm_mode == 'always':
-            raise UserError(
-                f"parameter sfm_mode 'always' needs num_workers 1 (one SfM registration per graph), "
-                f'got num_workers {self.num_workers}'
-            )
-        if self.num_workers > 1 and self.sfm_mode == 'auto':
-            self.sfm_mode = 'off'
-            self.get_logger().info(
-                'num_workers > 1: sfm_mode auto acts as off (one SfM registration per graph)'
-            )
-        self.sfm = SfmSession(
-            scale_hint=scale_hint,
-            max_side=sfm_max_side,
-            redefine=False,  # published poses must keep their frame
-        )
-        self.sfm_active = self.sfm_mode == 'always'
+        values = declare_table(self, DEPTH_REFINER)
+        cfg = DEPTH_REFINER.build(values)
+        for note in cfg.notes:
+            self.get_logger().info(note)
+        self.config = cfg
+        self.num_workers, self.worker_index = cfg.schedule.num_workers, cfg.schedule.worker_index
+        self.flush_after_s = cfg.flush_after_s
+        self.mirror = cfg.mirror_model
+        self.max_pending = cfg.max_pending
+        self.schedule = RefineScheduler(cfg.schedule)
+        self.trigger = SfmTrigger(cfg.sfm)
+        self.sfm = SfmSession(scale_hint=cfg.sfm.scale, max_side=cfg.sfm.max_side, redefine=False)
         self.unit = 'm'  # of poses and depth: 'sfm units' in an SfM frame without a scale
         self.sfm_times: list[float] = []
-        self._sfm_queue: list[int] = []  # stamps of keyframes waiting for SfmSession.add()
         self._sfm_views: dict[int, tuple[np.ndarray, PinholeCamera, str]] = {}  # image, camera, frame_id
-        self.mvs = MvsOptions(max_neighbours=max_nb)
-        self.schedule = RefineScheduler(
-            ScheduleConfig(
-                num_workers=self.num_workers,
-                worker_index=self.worker_index,
-                min_neighbours=min_neighbours,
-                refine_again=refine_again,
-                depth_range=parse_depth_range(rng),
-                scene_depth_m=scene_depth,
-                near_ratio=near_ratio,
-                far_ratio=far_ratio,
-                mvs=self.mvs,
-            )
-        )
-        self.refiner = self._make_refiner(mono, mono_model, mono_preset, sky, sky_model, sky_preset)
+        self.refiner = self._make_refiner(cfg.refiner, values)
         self.bad = BadInput(self)
         self.frames = StampAssembler(
             ('image', 'camera_info', 'pose'),
             self.max_pending,
             lambda detail: self.bad('incomplete', detail),
             what='keyframe',
-            max_bytes=round(max_mb * 2**20),
+            max_bytes=cfg.max_pending_bytes,
         )
         self.frame_ids: dict[int, str] = {}  # header frame_id of each scheduled keyframe
         self.pose_frames: dict[int, str] = {}  # frame_id of each keyframe's pose (posed flights)
@@ -245,13 +98,29 @@ class DepthRefinerNode(Node):
         self._stop = threading.Event()
         self._version = 0
         self._last_arrival = time.monotonic()
-        self._poseless: set[int] = set()  # frames with image and camera_info before any pose was seen
-        self.poses_seen = 0
         self.flight: FlightStatus | None = None  # the frame_subsampler's latest status
         self._ended = False  # the camera stream ended: flush
         self._published: set[int] = set()  # stamps whose depth this process published (own or mirrored)
         self._others: dict[int, dict[str, object]] = {}  # depth messages of other workers, by stamp
-        self._lease = lease
+        self._create_topics()
+        if cfg.warmup:
+            seconds = warm_up_refiner(cfg.mvs, self.refiner)
+            self.get_logger().info(f'warm-up MVS + refinement in {seconds:.2f} s')
+        # The lease starts now, after the warm-up (tens of seconds when the kernels are not cached yet).
+        self.members = ShardMembership(
+            self.num_workers, self.worker_index, cfg.worker_lease_s, time.monotonic()
+        )
+        self._live = self.members.live(time.monotonic())
+        self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f'worker {self.worker_index}/{self.num_workers}: refining keyframes with >= '
+            f'{cfg.schedule.min_neighbours} of up to {cfg.mvs.max_neighbours} neighbours; '
+            f'depth range {cfg.schedule.depth_range or "automatic"}; SfM mode {self.sfm_mode}'
+        )
+
+    def _create_topics(self) -> None:
+        """Subscriptions, publishers and the heartbeat timer of this configuration."""
         qos = model_qos()
         for msg_type, field, convert in (
             (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),  # a copy, detached from m
@@ -291,73 +160,70 @@ class DepthRefinerNode(Node):
             self.create_subscription(
                 DiagnosticStatus, 'refiners/heartbeat', self._on_heartbeat, reliable_qos()
             )
-            self.create_timer(lease / 3, self._beat)
+            self.create_timer(self.config.worker_lease_s / 3, self._beat)
         self.debug = {
-            n: self.create_publisher(Image, n, reliable_qos()) for n in DEBUG_TOPICS if self.publish_debug
+            n: self.create_publisher(Image, n, reliable_qos())
+            for n in DEBUG_TOPICS
+            if self.config.publish_debug
         }
-        if bool(p('warmup', True, 'run MVS and refinement on a tiny scene at start-up (kernels load once)')):
-            self.get_logger().info(
-                f'warm-up MVS + refinement in {warm_up_refiner(self.mvs, self.refiner):.2f} s'
-            )
-        # The lease starts now, after the warm-up (tens of seconds when the kernels are not cached yet).
-        self.members = ShardMembership(self.num_workers, self.worker_index, self._lease, time.monotonic())
-        self._live = self.members.live(time.monotonic())
-        self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
-        self._worker.start()
-        self.get_logger().info(
-            f'worker {self.worker_index}/{self.num_workers}: refining keyframes with >= '
-            f'{min_neighbours} of up to {max_nb} neighbours; '
-            f'depth range {self.schedule.config.depth_range or "automatic"}; SfM mode {self.sfm_mode}'
-        )
 
-    def _make_refiner(
-        self, mono: str, mono_model: str, mono_preset: str, sky: str, sky_model: str, sky_preset: str
-    ) -> DepthRefiner:
+    def _make_refiner(self, config: RefinerConfig, values: Mapping[str, Value]) -> DepthRefiner:
         """The refiner with the monocular and sky backends of the parameters; UserError naming the bad one."""
-        config = refiner_config(mono, mono_model, mono_preset, sky, sky_model, sky_preset, self.mvs)
         mono_spec, sky_spec = config.mono_model, config.sky_model
         try:
             refiner = DepthRefiner(config)  # loads the mono model first, then the sky model
         except MonoModelError as exc:
             if mono_spec is not None and str(exc).startswith(str(mono_spec.path)):
-                bad, path = f'mono_model {mono_model!r}', mono_spec.path
+                bad, path = f'mono_model {values["mono_model"]!r}', mono_spec.path
             else:
-                bad, path = f'sky_model {sky_model!r}', (sky_spec or mono_spec).path
+                spec = sky_spec or mono_spec
+                bad, path = f'sky_model {values["sky_model"]!r}', spec.path if spec is not None else None
             raise UserError(f'parameter {bad}: {str(exc).removeprefix(f"{path}: ")}') from exc
-        used = [f'mono {mono}' + (f' ({mono_spec.path.name})' if mono_spec else '')]
-        used.append(f'sky {sky}' + (f' ({sky_spec.path.name})' if sky_spec else ''))
+        used = [f'mono {config.mono}' + (f' ({mono_spec.path.name})' if mono_spec and mono_spec.path else '')]
+        used.append(f'sky {config.sky}' + (f' ({sky_spec.path.name})' if sky_spec and sky_spec.path else ''))
         self.get_logger().info(f'depth refinement with {", ".join(used)}')
         return refiner
+
+    # -- SfM mode state (the SfmTrigger's), by the names the tests and the log use ------------------
+    @property
+    def sfm_mode(self) -> SfmMode:
+        """'auto', 'always' or 'off' (the parameter; 'auto' acts as 'off' with num_workers > 1)."""
+        return self.trigger.mode
+
+    @property
+    def sfm_active(self) -> bool:
+        """SfM mode: keyframes without poses are registered here."""
+        return self.trigger.active
+
+    @property
+    def poses_seen(self) -> int:
+        return self.trigger.poses_seen
+
+    @property
+    def _sfm_queue(self) -> list[int]:
+        """Stamps of keyframes waiting for SfmSession.add()."""
+        return self.trigger.queue
+
+    @property
+    def _poseless(self) -> set[int]:
+        """Frames with image and camera_info before any pose was seen."""
+        return self.trigger.waiting
+
+    @_poseless.setter
+    def _poseless(self, stamps: set[int]) -> None:
+        self.trigger.waiting = set(stamps)
 
     # -- input ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
         with self._lock:
             if stamp in self.schedule or stamp in self._sfm_views:
                 return  # a keyframe already here, again (a mirror's copy, a late duplicate)
-        if field == 'pose':
-            if self.sfm_active:
-                return  # this node's own poses (or another source's, which SfM mode ignores)
-            self.poses_seen += 1
+            if field == 'pose' and not self.trigger.pose():
+                return  # SfM mode: this node's own poses (or another source's, which it ignores)
         if (f := self.frames.put(stamp, field, value)) is None:
             partial = self.frames.partial(stamp)
-            if 'image' in partial and 'camera_info' in partial and not self.poses_seen:
-                if self.sfm_active:
-                    self.frames.discard(stamp)
-                    self._add_poseless(stamp, partial['image'], *partial['camera_info'])
-                    return
-                if stamp in self._poseless:
-                    return
-                self._poseless.add(stamp)
-                if len(self._poseless) == 3:
-                    self.get_logger().info(
-                        'keyframes arrive before their keyframes/pose: '
-                        + (
-                            'frames without poses are not refined (sfm_mode off)'
-                            if self.sfm_mode == 'off'
-                            else 'waiting for their poses (SfM mode starts only when keyframes/status '
-                            'says the flight has no poses)'
-                        )
-                    )
+            if 'image' in partial and 'camera_info' in partial:
+                self._without_pose(stamp, partial)
             return
         image, (frame_id, camera), (pose, pose_frame) = f['image'], f['camera_info'], f['pose']
         if mismatch := size_mismatch(camera.width, camera.height, image.shape, stamp):
@@ -374,6 +240,26 @@ class DepthRefinerNode(Node):
         self._mirror(stamp)  # another worker's depth may have come first
         self._wake.set()
 
+    def _without_pose(self, stamp: int, partial: dict[str, object]) -> None:
+        """A keyframe with image and camera_info but no pose: registered in SfM mode, else it waits."""
+        with self._lock:
+            register = self.trigger.active
+            third = not register and self.trigger.wait_for_pose(stamp)
+        if register:
+            self.frames.discard(stamp)
+            # the assembler's fields: an rgb array and (frame_id, camera), as their converters make them
+            self._add_poseless(stamp, partial['image'], *partial['camera_info'])  # type: ignore[arg-type,misc]
+        elif third:
+            self.get_logger().info(
+                'keyframes arrive before their keyframes/pose: '
+                + (
+                    'frames without poses are not refined (sfm_mode off)'
+                    if self.sfm_mode == 'off'
+                    else 'waiting for their poses (SfM mode starts only when keyframes/status '
+                    'says the flight has no poses)'
+                )
+            )
+
     # -- SfM mode -------------------------------------------------------------------------------
     def _add_poseless(self, stamp: int, image: np.ndarray, frame_id: str, camera: PinholeCamera) -> None:
         """Queue a keyframe without a pose for registration (executor thread; the worker adds it)."""
@@ -385,7 +271,7 @@ class DepthRefinerNode(Node):
                 self.get_logger().debug(f'keyframe {stamp} ns received again: ignored')
                 return
             self._sfm_views[stamp] = (image, camera, frame_id)
-            self._sfm_queue.append(stamp)
+            self.trigger.add(stamp)
             self._last_arrival = time.monotonic()
         self._wake.set()
 
@@ -398,14 +284,15 @@ class DepthRefinerNode(Node):
             self.bad('status', f'keyframes/status from {msg.name!r}: {exc}')
             return
         self.flight = status
-        if status.pose_source == 'none' and self.sfm_mode == 'auto' and not self.sfm_active:
-            if self.poses_seen:
-                self.get_logger().warning(
-                    'keyframes/status says the flight has no poses, but poses arrived: staying with them'
-                )
-            else:
-                self._start_sfm()
-        elif status.pose_source == 'pose' and self.sfm_active and self.sfm_mode == 'auto':
+        with self._lock:
+            decision = self.trigger.status(status.pose_source)
+        if decision == 'keep_poses':
+            self.get_logger().warning(
+                'keyframes/status says the flight has no poses, but poses arrived: staying with them'
+            )
+        elif decision == 'start':
+            self._start_sfm()
+        elif decision == 'keep_sfm':
             self.get_logger().warning(
                 'keyframes/status says poses arrive now: this flight stays in SfM mode (its frame is fixed)',
                 once=True,
@@ -420,8 +307,7 @@ class DepthRefinerNode(Node):
             self._wake.set()
 
     def _start_sfm(self) -> None:
-        """'auto' and a flight without poses: register the keyframes here (waiting ones first)."""
-        self.sfm_active = True
+        """SfM mode started ('auto', a flight without poses): register the waiting keyframes first."""
         self.get_logger().warning(
             'keyframes/status: the flight has no poses: SfM mode, keyframes are registered here and '
             'their poses published on keyframes/pose'
@@ -546,17 +432,12 @@ class DepthRefinerNode(Node):
 
     def _sfm_due(self, flush: bool) -> bool:
         """Whether the worker should register now (called with the lock held)."""
-        added = len(self._sfm_queue)
-        if not self.sfm_active or added == 0:
-            return False
-        if self.sfm.frame is None:
-            return len(self.sfm) + added >= self.sfm_min_keyframes
-        return added >= self.sfm_every or flush
+        return self.trigger.due(flush, registered=len(self.sfm), framed=self.sfm.frame is not None)
 
     def _register(self) -> None:
         """Run one SfM update over all pose-less keyframes; publish and schedule the new poses (worker)."""
         with self._lock:
-            queue, self._sfm_queue = self._sfm_queue, []
+            queue = self.trigger.take()
         for stamp in queue:
             image, camera, _ = self._sfm_views[stamp]
             try:
@@ -585,6 +466,8 @@ class DepthRefinerNode(Node):
             for stamp in u.new:
                 image, camera, frame_id = self._sfm_views[stamp]
                 t_wc = u.poses[stamp]
+                if t_wc is None or self.pub_pose is None:  # a new keyframe is registered; SfM mode
+                    continue
                 self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
                 self.schedule.add(stamp, MvsView(image, camera, t_wc))
                 self.frame_ids[stamp] = frame_id
@@ -649,20 +532,12 @@ class DepthRefinerNode(Node):
     # -- refinement -----------------------------------------------------------------------------
     def _refine(self, job: RefineJob) -> bool:
         """Refine and publish ``job``; False when the refinement failed (counted as bad input)."""
-        t0 = time.perf_counter()
         n, rng = len(job.neighbours), job.depth_range
-        mvs = compute_depth_maps(job.views, options=self.mvs, depth_range=rng)[0]
-        t1 = time.perf_counter()
-        try:
-            r = self.refiner.refine_from_mvs(job.view, mvs.depth)
-        except RefineError as exc:
-            self.bad('refine', f'keyframe {job.stamp} ns ({n} neighbours, MVS {mvs.reason or "ok"}): {exc}')
-            return False
-        t2 = time.perf_counter()
+        result = refine_job(self.refiner, job, self.schedule.config.mvs)
         if self._stop.is_set():
             return False
-        if not known_depth(r.depth):
-            self.bad('refine', f'keyframe {job.stamp} ns ({n} neighbours): no pixel has a known depth')
+        if (r := result.refined) is None:
+            self.bad('refine', f'keyframe {job.stamp} ns ({result.context}): {result.error}')
             return False
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
         with self._lock:
@@ -682,17 +557,18 @@ class DepthRefinerNode(Node):
                 'depth/mvs': msg_utils.depth_m_to_image(r.mvs, header),
                 'depth/mono_remapped': msg_utils.depth_m_to_image(r.mono_remapped, header),
                 'depth/sky_mask': msg_utils.numpy_to_image(r.sky.astype(np.uint8) * 255, 'mono8', header),
-                'depth/preview': msg_utils.numpy_to_image(colourise(r.depth), 'rgb8', header),
-                'depth/mvs/preview': msg_utils.numpy_to_image(colourise(r.mvs), 'rgb8', header),
+                'depth/preview': msg_utils.numpy_to_image(colour_depth(r.depth), 'rgb8', header),
+                'depth/mvs/preview': msg_utils.numpy_to_image(colour_depth(r.mvs), 'rgb8', header),
             }
             for name, msg in out.items():
                 self.debug[name].publish(msg)
         again = ' again' if job.again else ''
-        self.refine_times.append(t2 - t0)
+        self.refine_times.append(result.seconds)
         flags = f', flags {",".join(r.flags)}' if r.flags else ''
+        t = result.timings_s
         self.get_logger().info(
-            f'refined{again} keyframe {job.stamp} ns with {n} neighbours in {t2 - t0:.2f} s '
-            f'(MVS {t1 - t0:.2f} s, refine {t2 - t1:.2f} s; MVS completeness {r.mvs_completeness:.2f}, '
+            f'refined{again} keyframe {job.stamp} ns with {n} neighbours in {result.seconds:.2f} s '
+            f'(MVS {t["mvs"]:.2f} s, refine {t["refine"]:.2f} s; MVS completeness {r.mvs_completeness:.2f}, '
             f'range {rng[0]:.1f}-{rng[1]:.1f} {self.unit}{flags})'
         )
         return True

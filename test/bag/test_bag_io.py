@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap_helpers import corrupt_chunk
 from rosbags.typesys import Stores, get_typestore
 
 from ibr_ros.bag import TYPESTORE, BagWriter, OfferedQos, detect_topics, find_bags, open_bag, serialize
@@ -143,19 +144,6 @@ def write_sample(path: Path, **kwargs: object) -> Path:
         for topic, msg, ns in sample_messages():
             writer.write(topic, msg, ns)
     return path
-
-
-def corrupt_chunk(data: bytes) -> bytes:
-    """``data`` (an MCAP file) with the middle of its first chunk overwritten."""
-    import io
-
-    from mcap.reader import make_reader
-
-    summary = make_reader(io.BytesIO(data)).get_summary()
-    assert summary is not None
-    chunk = summary.chunk_indexes[0]
-    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
-    return data[: middle - 20] + b'\xff' * 40 + data[middle + 20 :]
 
 
 @pytest.fixture(scope='module')

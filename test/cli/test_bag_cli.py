@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_bag_io import corrupt_chunk
+from mcap_helpers import corrupt_chunk
 
 from ibr_ros.bag import TYPESTORE, BagWriter
 from ibr_ros.cli.main import main

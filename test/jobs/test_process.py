@@ -379,7 +379,7 @@ def test_target_keyframes_two_passes_skip_bad_images(flight, tmp_path):
     """The second pass assembles frames as the first (undecodable images included) and decodes only the
     chosen ones; ``--max-keyframes`` keeps the first of them; a negative target is a user error.
     """
-    from ibr_ros.jobs.process import _configs, _subsample
+    from ibr_ros.jobs.process import process_configs, subsample
 
     bag = tmp_path / 'garbled'
     with open_bag(flight) as reader, BagWriter(bag) as writer:
@@ -392,7 +392,7 @@ def test_target_keyframes_two_passes_skip_bad_images(flight, tmp_path):
             else:
                 writer.write_raw(m.topic, m.msgtype, m.rawdata, m.timestamp_ns)
     o = ProcessOptions(target_keyframes=6)
-    sub = _subsample(bag, _configs(load_params(), o), o, None)
+    sub = subsample(bag, process_configs(load_params(), o), o, None)
     assert sub.bad['image'] == 2
     assert sub.counts['frames'] == 10
     assert sub.selection['method'] == 'select_keyframes'
@@ -403,8 +403,8 @@ def test_target_keyframes_two_passes_skip_bad_images(flight, tmp_path):
     for k in sub.keyframes:
         np.testing.assert_array_equal(k.rgb, msg_utils.compressed_image_to_numpy(jpeg[k.stamp]))
     o = ProcessOptions(target_keyframes=6, max_keyframes=2)
-    first = _subsample(bag, _configs(load_params(), o), o, None)
+    first = subsample(bag, process_configs(load_params(), o), o, None)
     assert [k.stamp for k in first.keyframes] == [k.stamp for k in sub.keyframes[:2]]
     assert first.stopped
     with pytest.raises(UserError, match='target_keyframes'):
-        _configs(load_params(), ProcessOptions(target_keyframes=-1))
+        process_configs(load_params(), ProcessOptions(target_keyframes=-1))

@@ -31,7 +31,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
-from ibr_ros.bag import BagWriter, OfferedQos, TopicInfo, open_bag
+from ibr_ros.bag import BagWriter, OfferedQos, open_bag
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.nodes.common import model_qos
 
@@ -285,7 +285,8 @@ def test_missing_bag_is_one_error_line_and_exit_2(ros_env, tmp_path):
 
 
 def test_undecodable_payloads_are_classified_and_valid_ones_pass():
-    from ibr_ros.nodes.bag_player import decoder, undecodable
+    from ibr_ros.bag.playback import undecodable
+    from ibr_ros.nodes.bag_player import decoder
 
     header = msg_utils.make_header(SMALL_START_NS, 'camera_optical')
     img = msg_utils.numpy_to_image(_frame(0), 'rgb8', header)
@@ -317,40 +318,6 @@ def test_loop_over_undecodable_messages_only_stops_with_exit_2(ros_env, tmp_path
     assert proc.returncode == 2, out
     assert 'pass 1 done: 3 undecodable messages skipped: /camera/pose 3 (corrupt 3)' in out, out
     assert 'published no message; not looping' in out, out
-
-
-def test_play_qos_follows_the_recording_and_overrides():
-    from ibr_ros.nodes.bag_player import PlayQos, parse_topic_qos, play_qos
-
-    def qos(count: int, *offered: OfferedQos, **kw) -> tuple[PlayQos, str]:
-        info = TopicInfo('/t', 'std_msgs/msg/String', count, 'cdr', offered)
-        return play_qos(info, depth=100, max_durable_depth=1000, **kw)
-
-    latched = OfferedQos('reliable', 'transient_local', depth=1)
-    assert qos(7) == (PlayQos('reliable', 'volatile', 100, 'default'), '')
-    assert qos(25, latched) == (PlayQos('reliable', 'transient_local', 25, 'recorded'), '')  # all 25 kept
-    assert qos(25, OfferedQos.from_profile(model_qos()))[0].depth == 1000
-    assert qos(4, OfferedQos('reliable', 'transient_local', 'unknown', 0))[0].depth == 4  # as discovered
-    assert qos(25, latched, latched)[0].durability == 'transient_local'  # two publishers, same QoS
-    durable, note = qos(5000, latched)
-    assert (durable.depth, note) == (1000, 'history of 5000 capped at max_durable_depth')
-    sensor, note = qos(7, OfferedQos('best_effort', 'volatile', depth=5))
-    assert (sensor, 'played reliable' in note) == (PlayQos('reliable', 'volatile', 100, 'recorded'), True)
-    mixed, note = qos(7, latched, OfferedQos())
-    assert (mixed.durability, mixed.source, 'offered different QoS' in note) == ('volatile', 'default', True)
-    assert qos(7, latched, use_recorded=False)[0] == PlayQos()
-    overrides = parse_topic_qos(['/t:=transient_local', '/u:= Best_Effort, depth=5'])
-    assert overrides == {
-        '/t': {'durability': 'transient_local'},
-        '/u': {'reliability': 'best_effort', 'depth': 5},
-    }
-    assert qos(7, override=overrides['/t'])[0] == PlayQos('reliable', 'transient_local', 7, 'override')
-    assert qos(7, latched, override=overrides['/u'])[0] == PlayQos(
-        'best_effort', 'transient_local', 5, 'override'
-    )
-    for bad in ('/t', '/t:=', ':=reliable', '/t:=latched', '/t:=depth=0', '/t:=reliable,depth=x'):
-        with pytest.raises(ValueError, match='parameter topic_qos'):
-            parse_topic_qos([bad])
 
 
 def test_transient_local_topics_reach_a_late_subscriber(ros_env, ros, tmp_path):

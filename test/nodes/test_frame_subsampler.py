@@ -164,18 +164,6 @@ def test_keyframes_without_poses(repo):
     assert (got['info'][0].width, got['info'][0].height) == (320, 180)
 
 
-def test_target_baseline():
-    from ibr_ros.nodes.frame_subsampler import target_baseline
-
-    assert target_baseline(0, 0.0) is None  # off
-    assert target_baseline(0, 500.0) is None
-    assert target_baseline(25, 500.0) == 20.0
-    with pytest.raises(ValueError, match='needs expected_path_m > 0'):
-        target_baseline(25, 0.0)
-    with pytest.raises(ValueError, match='>= 0'):
-        target_baseline(-1, 100.0)
-
-
 def test_target_keyframes_live_hint(repo):
     """``target_keyframes`` 25 + ``expected_path_m`` (the bag's path length): about 25 keyframes over the
     whole shipped flight, even with a scene depth set (the target's baseline replaces its rule).

@@ -374,13 +374,13 @@ def test_full_rate_replay_selects_the_keyframes_ibr_process_selects(repo, ros_en
     """bag_player ``rate:=0`` -> frame_subsampler, both with the shipped config: every frame arrives
     (reliable, acknowledged), so the live keyframes are exactly those ``ibr process`` selects."""
     from ibr_ros.graph import camera_topics
-    from ibr_ros.jobs.process.frames import _subsample
+    from ibr_ros.jobs.process.frames import subsample
     from ibr_ros.jobs.process.options import ProcessOptions
-    from ibr_ros.jobs.process.params import _configs, load_params
+    from ibr_ros.jobs.process.params import load_params, process_configs
 
     bag = repo / 'bags' / 'synth_orbit_s0'
     o = ProcessOptions()
-    offline = [k.stamp for k in _subsample(bag, _configs(load_params(None), o), o, None).keyframes]
+    offline = [k.stamp for k in subsample(bag, process_configs(load_params(None), o), o, None).keyframes]
     wait = '[' + ', '.join(camera_topics(bag)) + ']'
     subsampler = _launch('frame_subsampler', ros_env)
     player = _launch(
@@ -415,10 +415,10 @@ def test_full_rate_graph_depth_matches_ibr_process(repo, ros_env, tmp_path):
     refined keyframes are ``ibr process``'s, and their depth agrees with it (the live refiner picks
     neighbours among the keyframes seen so far, offline among all: close, not identical)."""
     from ibr_ros.graph import camera_topics
-    from ibr_ros.jobs.process.frames import _subsample
+    from ibr_ros.jobs.process.frames import subsample
     from ibr_ros.jobs.process.options import ProcessOptions
-    from ibr_ros.jobs.process.params import _configs, load_params
-    from ibr_ros.jobs.process.refine import _refine_all
+    from ibr_ros.jobs.process.params import load_params, process_configs
+    from ibr_ros.jobs.process.refine import refine_all
 
     bag = repo / 'bags' / 'synth_orbit_s0'
     params = tmp_path / 'demo.yaml'
@@ -427,9 +427,9 @@ def test_full_rate_graph_depth_matches_ibr_process(repo, ros_env, tmp_path):
         'depth_refiner:\n  ros__parameters:\n    max_neighbours: 2\n'
     )
     o = ProcessOptions(params=params)
-    cfg = _configs(load_params(params), o)
-    offline = _subsample(bag, cfg, o, None).keyframes
-    _refine_all(offline, cfg, None)
+    cfg = process_configs(load_params(params), o)
+    offline = subsample(bag, cfg, o, None).keyframes
+    refine_all(offline, cfg, None)
     wait = '[' + ', '.join(camera_topics(bag)) + ']'
     procs = [
         _launch('frame_subsampler', ros_env, 'scene_depth_m:=80.0'),

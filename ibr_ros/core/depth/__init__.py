@@ -1,11 +1,15 @@
 """Per-keyframe depth: plane-sweep MVS, pruning, monocular depth and its per-view lookup table,
-MST non-local fusion, sky masks, the refinement pipeline and the refinement scheduler.
+MST non-local fusion, sky masks, the refinement pipeline (one keyframe's step: ``refine_job``), the
+refinement scheduler and depth colouring for previews.
 
 Depth maps are float32 z-depth in metres (REP-118 in messages: NaN unknown, +inf sky).
 """
 
 from __future__ import annotations
 
+from ibr_ros.core.depth.colour import (
+    colour_depth,
+)
 from ibr_ros.core.depth.fusion import (
     build_mst,
     fuse_depth,
@@ -48,9 +52,12 @@ from ibr_ros.core.depth.prune import (
 )
 from ibr_ros.core.depth.refine import (
     DepthRefiner,
+    JobResult,
     RefinedDepth,
     RefineError,
     RefinerConfig,
+    known_depth,
+    refine_job,
 )
 from ibr_ros.core.depth.remap import (
     build_lut,
@@ -88,6 +95,7 @@ __all__ = [
     'SKY_PRESETS',
     'DepthRefiner',
     'GroundPlanePrior',
+    'JobResult',
     'MonoModelError',
     'MonoModelSpec',
     'MvsBackendUnavailable',
@@ -107,12 +115,14 @@ __all__ = [
     'axis_scene_depth',
     'build_lut',
     'build_mst',
+    'colour_depth',
     'compute_depth_maps',
     'depth_range_from_points',
     'erode_sky',
     'fuse_depth',
     'geometric_filter',
     'horizon_mask',
+    'known_depth',
     'level_medians',
     'linear_remap',
     'lut_remap',
@@ -124,6 +134,7 @@ __all__ = [
     'onnx_session',
     'parse_depth_range',
     'prune_depth',
+    'refine_job',
     'select_neighbours',
     'shard_of',
     'sky_fallback',

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, cast
 
 import cv2
 import numpy as np
@@ -157,7 +157,8 @@ class OnnxMonoDepth:
         """The model input tensor for an RGB uint8 image."""
         h, w = rgb.shape[:2]
         mw, mh = self.spec.model_size(w, h)
-        x = cv2.resize(rgb, (mw, mh), interpolation=cv2.INTER_AREA if mw < w else cv2.INTER_LINEAR)
+        interpolation = cv2.INTER_AREA if mw < w else cv2.INTER_LINEAR
+        x = cast('NDArray[np.uint8]', cv2.resize(rgb, (mw, mh), interpolation=interpolation))  # keeps uint8
         s = self.spec
         return to_input_tensor(x, s.color_order, s.mean, s.std, s.layout)
 
@@ -170,7 +171,9 @@ class OnnxMonoDepth:
         if self.spec.flip_average:
             w_axis = 3 if self.spec.layout == 'NCHW' else 2
             out = 0.5 * (out + self._run(np.ascontiguousarray(np.flip(x, w_axis)))[:, ::-1])
-        out = cv2.resize(out, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
+        size = (rgb.shape[1], rgb.shape[0])
+        # cv2's stubs give no dtypes: resize keeps float32.
+        out = cast('NDArray[np.float32]', cv2.resize(out, size, interpolation=cv2.INTER_LINEAR))
         if self.spec.output == 'inverse_depth':
             return out
         with np.errstate(divide='ignore', invalid='ignore'):

@@ -46,7 +46,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numba
@@ -88,6 +88,17 @@ class MvsBackendUnavailable(RuntimeError):  # noqa: N818 (the name the callers u
     """The requested MVS backend cannot run on this machine (e.g. pycolmap without CUDA)."""
 
 
+#: The :class:`MvsOptions` fields that are keyword arguments of :func:`select_neighbours`.
+_NEIGHBOUR_OPTIONS = (
+    'max_neighbours',
+    'min_angle_deg',
+    'max_angle_deg',
+    'target_angle_deg',
+    'min_overlap',
+    'max_view_angle_deg',
+)
+
+
 @dataclass(frozen=True)
 class MvsOptions:
     """Parameters of :func:`mvs_depth` and :func:`compute_depth_maps` (see the module docstring).
@@ -98,8 +109,8 @@ class MvsOptions:
     ``refine_steps`` half-plane offsets each side, ``propagation_radius`` (sweep-scale pixels),
     ``surface_passes``. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
     0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off), ``edge_trim_ratio``. Neighbours: the
-    keyword arguments of :func:`select_neighbours`. Geometric filter: ``min_consistent``,
-    ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
+    keyword arguments of :func:`select_neighbours` (:meth:`neighbour_options`). Geometric filter:
+    ``min_consistent``, ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
     """
 
     backend: Literal['cpu', 'colmap'] = 'cpu'
@@ -128,6 +139,10 @@ class MvsOptions:
     min_consistent: int = 2
     max_reproj_px: float = 1.0
     max_rel_depth_err: float = 0.01
+
+    def neighbour_options(self) -> dict[str, Any]:
+        """The neighbour settings as keyword arguments of :func:`select_neighbours`."""
+        return {name: getattr(self, name) for name in _NEIGHBOUR_OPTIONS}
 
     def __post_init__(self) -> None:
         def bad(name: str, rule: str) -> ValueError:
@@ -463,7 +478,7 @@ def _grey(name: str, img: ArrayLike, cam: PinholeCamera) -> NDArray[np.float32]:
     if a.dtype.kind == 'f':
         g = np.nan_to_num(g, nan=0.0) * (255.0 if float(np.nanmax(a, initial=0.0)) <= 1.0 else 1.0)
     if a.ndim == 3 and a.shape[2] == 3:
-        g = cv2.cvtColor(g, cv2.COLOR_RGB2GRAY)
+        g = np.asarray(cv2.cvtColor(g, cv2.COLOR_RGB2GRAY), np.float32)
     return np.ascontiguousarray(g.reshape(cam.height, cam.width))
 
 
@@ -636,7 +651,10 @@ def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: f
     )
     if o.propagation_radius > 0:
         ker = np.ones((2 * o.propagation_radius + 1,) * 2, np.uint8)
-        cands += [cv2.dilate(rho_s, ker), cv2.erode(np.where(rho_s > 0, rho_s, np.float32(1e9)), ker)]
+        cands += [
+            np.asarray(cv2.dilate(rho_s, ker), np.float32),
+            np.asarray(cv2.erode(np.where(rho_s > 0, rho_s, np.float32(1e9)), ker), np.float32),
+        ]
     for c in cands:
         c = up(c)
         _, sc, _ = fine.sweep(stats, c, [0.0], o.refine_window, o, False)
@@ -904,24 +922,18 @@ def compute_depth_maps(
         return []
     if depth_range is None and points_w is None:
         raise ValueError('compute_depth_maps needs depth_range or points_w')
+    points = np.empty((0, 3)) if points_w is None else points_w  # read only without a depth_range
     cams = [_check_camera(f'views[{i}].camera', v.camera) for i, v in enumerate(views)]
     poses = _poses(
         'views[].t_wc', np.stack([np.asarray(v.t_wc, dtype=np.float64).reshape(4, 4) for v in views])
     )
     for i, (v, c) in enumerate(zip(views, cams)):
         _grey(f'views[{i}].rgb', v.rgb, c)
-    kw = {
-        'max_neighbours': o.max_neighbours,
-        'min_angle_deg': o.min_angle_deg,
-        'max_angle_deg': o.max_angle_deg,
-        'target_angle_deg': o.target_angle_deg,
-        'min_overlap': o.min_overlap,
-        'max_view_angle_deg': o.max_view_angle_deg,
-    }
+    kw = o.neighbour_options()
     nbrs: list[list[int]] = []
     no_range = [False] * n
     for i in range(n):
-        if depth_range is None and depth_range_from_points(points_w, cams[i], poses[i]) is None:
+        if depth_range is None and depth_range_from_points(points, cams[i], poses[i]) is None:
             no_range[i] = True
             nbrs.append([])
         else:
@@ -929,11 +941,11 @@ def compute_depth_maps(
     if o.backend == 'colmap':
         rng = depth_range
         if rng is None:
-            ranges = [depth_range_from_points(points_w, c, p) for c, p in zip(cams, poses)]
-            ranges = [r for r in ranges if r is not None]
-            if not ranges:
+            ranges = [depth_range_from_points(points, c, p) for c, p in zip(cams, poses)]
+            found = [r for r in ranges if r is not None]
+            if not found:
                 raise ValueError('points_w: no view sees 10 or more of them, pass depth_range')
-            rng = (min(r[0] for r in ranges), max(r[1] for r in ranges))
+            rng = (min(r[0] for r in found), max(r[1] for r in found))
         return _colmap_depth_maps(views, nbrs, rng, o)
     results: list[MvsResult] = []
     for i, v in enumerate(views):

@@ -49,7 +49,7 @@ def to_input_tensor(
 ) -> NDArray[np.float32]:
     """A batch of one: an RGB uint8 image already at the model size, reordered, in [0, 1], normalised
     ``(x - mean) / std`` and laid out as ``layout``."""
-    x = resized[..., ::-1] if color_order == 'BGR' else resized
-    x = (x.astype(np.float32) / 255.0 - np.float32(mean)) / np.float32(std)
+    rgb = resized[..., ::-1] if color_order == 'BGR' else resized
+    x = (rgb.astype(np.float32) / 255.0 - np.asarray(mean, np.float32)) / np.asarray(std, np.float32)
     x = x.transpose(2, 0, 1) if layout == 'NCHW' else x
     return np.ascontiguousarray(x[None], dtype=np.float32)

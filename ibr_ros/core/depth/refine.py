@@ -1,8 +1,10 @@
 """Per-view depth refinement (paper Section III-A): MVS -> prune -> mono remap -> MST fusion -> sky.
 
 :class:`DepthRefiner` composes :mod:`mvs`, :mod:`prune`, :mod:`mono`, :mod:`remap`, :mod:`fusion`
-and :mod:`sky` and keeps every intermediate map for debugging and evaluation. Depth maps are
-float32 z-depth in metres, 0 = unknown, +inf = infinitely far.
+and :mod:`sky` and keeps every intermediate map for debugging and evaluation. :func:`refine_job`
+is one step of the depth_refiner node and ``ibr process``: MVS, then refinement, of one
+:class:`~ibr_ros.core.depth.schedule.RefineJob`. Depth maps are float32 z-depth in metres,
+0 = unknown, +inf = infinitely far.
 """
 
 from __future__ import annotations
@@ -18,13 +20,22 @@ from numpy.typing import NDArray
 
 from ibr_ros.core.depth.fusion import fuse_depth
 from ibr_ros.core.depth.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
+from ibr_ros.core.depth.mvs import MvsOptions, MvsResult, MvsView, compute_depth_maps
 from ibr_ros.core.depth.prune import prune_depth
 from ibr_ros.core.depth.remap import lut_remap
+from ibr_ros.core.depth.schedule import RefineJob
 from ibr_ros.core.depth.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, sky_fallback
 from ibr_ros.core.geometry.plane import fit_ground_plane
 
-__all__ = ['DepthRefiner', 'RefineError', 'RefinedDepth', 'RefinerConfig']
+__all__ = [
+    'DepthRefiner',
+    'JobResult',
+    'RefineError',
+    'RefinedDepth',
+    'RefinerConfig',
+    'known_depth',
+    'refine_job',
+]
 
 LOG = logging.getLogger(__name__)
 
@@ -60,7 +71,6 @@ class RefinerConfig:
     sky_erosion: float = 0.03
     min_mvs_pixels: int = 64
     min_mvs_fraction: float = 0.01
-    mvs: MvsOptions = field(default_factory=MvsOptions)
 
     def __post_init__(self) -> None:
         if self.mono not in ('plane', 'onnx'):
@@ -122,8 +132,9 @@ class DepthRefiner:
     def __init__(self, config: RefinerConfig | None = None) -> None:
         self.config = config or RefinerConfig()
         c = self.config
-        self._mono = OnnxMonoDepth(c.mono_model) if c.mono == 'onnx' else None  # type: ignore[arg-type]
-        self._sky = OnnxSkySegmenter(c.sky_model) if c.sky == 'onnx' else None  # type: ignore[arg-type]
+        # RefinerConfig guarantees a model for each 'onnx' backend.
+        self._mono = OnnxMonoDepth(c.mono_model) if c.mono_model is not None and c.mono == 'onnx' else None
+        self._sky = OnnxSkySegmenter(c.sky_model) if c.sky_model is not None and c.sky == 'onnx' else None
 
     def refine(
         self,
@@ -133,8 +144,10 @@ class DepthRefiner:
         d_mvs: NDArray[np.floating] | None = None,
         points_w: NDArray[np.floating] | None = None,
         depth_range: tuple[float, float] | None = None,
+        mvs: MvsOptions | None = None,
     ) -> RefinedDepth:
-        """Refined depth of ``view``; runs MVS with ``neighbours`` unless ``d_mvs`` is given.
+        """Refined depth of ``view``; runs MVS (``mvs`` options) with ``neighbours`` unless ``d_mvs``
+        is given.
 
         MVS computes the photometric depth of ``view`` and of every neighbour so that the
         geometric filter can check ``view``'s depth against them (about 5x the cost of one view;
@@ -145,7 +158,7 @@ class DepthRefiner:
             if not neighbours:
                 raise RefineError('a single view has no neighbours for MVS: pass d_mvs or neighbour views')
             results = compute_depth_maps(
-                [view, *neighbours], options=self.config.mvs, points_w=points_w, depth_range=depth_range
+                [view, *neighbours], options=mvs, points_w=points_w, depth_range=depth_range
             )
             if results[0].reason:
                 LOG.warning('MVS gave no depth for the view: %s', results[0].reason)
@@ -235,3 +248,56 @@ class DepthRefiner:
             flags=tuple(flags),
             timings_s=timings,
         )
+
+
+def known_depth(depth: NDArray[np.floating]) -> bool:
+    """Whether a depth map (metres; 0, NaN and negative unknown, +inf sky) has at least one finite
+    known value; one without is rejected, never published or swapped in (the nodes' check on
+    received depth is :func:`ibr_ros.nodes.common.known_depth`, kept there so that nodes without
+    depth work do not import this package)."""
+    return bool((np.isfinite(depth) & (depth > 0)).any())
+
+
+@dataclass(frozen=True, eq=False)
+class JobResult:
+    """What :func:`refine_job` made of one job: ``refined`` is None when it failed.
+
+    ``context``: the neighbour count (and the MVS outcome) for messages; ``error``: why it failed
+    ('' when refined); ``timings_s``: seconds of ``mvs`` and ``refine``.
+    """
+
+    job: RefineJob
+    mvs: MvsResult
+    refined: RefinedDepth | None
+    context: str
+    error: str = ''
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def seconds(self) -> float:
+        """MVS + refinement wall time (s)."""
+        return sum(self.timings_s.values())
+
+
+def refine_job(refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions) -> JobResult:
+    """MVS of ``job`` (:func:`~ibr_ros.core.depth.mvs.compute_depth_maps` of its views over its depth
+    range, ``mvs`` options), then :meth:`DepthRefiner.refine_from_mvs` of its keyframe.
+
+    A :class:`RefineError` or a result without any known depth (:func:`known_depth`) is a failed
+    result, not an exception.
+    """
+    n = len(job.neighbours)
+    t0 = time.perf_counter()
+    m = compute_depth_maps(job.views, options=mvs, depth_range=job.depth_range)[0]
+    t1 = time.perf_counter()
+    context = f'{n} neighbours, MVS {m.reason or "ok"}'
+    try:
+        r = refiner.refine_from_mvs(job.view, m.depth)
+    except RefineError as exc:
+        return JobResult(
+            job, m, None, context, str(exc), {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}
+        )
+    timings = {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}
+    if not known_depth(r.depth):
+        return JobResult(job, m, None, f'{n} neighbours', 'no pixel has a known depth', timings)
+    return JobResult(job, m, r, context, '', timings)

@@ -45,15 +45,6 @@ __all__ = [
     'shard_of',
 ]
 
-_NEIGHBOUR_OPTIONS = (
-    'max_neighbours',
-    'min_angle_deg',
-    'max_angle_deg',
-    'target_angle_deg',
-    'min_overlap',
-    'max_view_angle_deg',
-)
-
 
 def shard_of(stamp_ns: int, num_workers: int) -> int:
     """The worker (0 .. ``num_workers`` - 1) that refines the keyframe stamped ``stamp_ns``."""
@@ -99,8 +90,8 @@ def parse_depth_range(values: Sequence[float], name: str = 'depth_range') -> tup
 class ScheduleConfig:
     """Policy of :class:`RefineScheduler` (see the module docstring).
 
-    ``mvs``: its ``max_neighbours`` and neighbour-selection options (``min_angle_deg``,
-    ``max_angle_deg``, ``target_angle_deg``, ``min_overlap``, ``max_view_angle_deg``) are used.
+    ``mvs``: the MVS options the keyframes are refined with (held here only); its neighbour settings
+    (:meth:`~ibr_ros.core.depth.mvs.MvsOptions.neighbour_options`) choose the neighbours.
     ``depth_range``: (near, far) in metres or None (automatic); ``scene_depth_m``: 0 = estimate.
     """
 
@@ -135,11 +126,6 @@ class ScheduleConfig:
             raise ValueError(
                 f'near_ratio {self.near_ratio} and far_ratio {self.far_ratio} must satisfy 0 < near < far'
             )
-
-    @property
-    def neighbour_options(self) -> dict[str, float]:
-        """Keyword arguments of :func:`~ibr_ros.core.depth.mvs.select_neighbours` taken from ``mvs``."""
-        return {k: getattr(self.mvs, k) for k in _NEIGHBOUR_OPTIONS}
 
 
 @dataclass(frozen=True, eq=False)
@@ -279,11 +265,12 @@ class RefineScheduler:
         cfg = self.config
         poses = np.stack([k.view.t_wc for k in kfs])
         cams = [k.view.camera for k in kfs]
+        options = cfg.mvs.neighbour_options()
         for i, kf in enumerate(kfs):
             if not kf.mine or kf.elsewhere or (kf.used and not cfg.refine_again):
                 continue
             rng = self._range(kf, kfs[:i] + kfs[i + 1 :])
-            nbrs = select_neighbours(i, poses, cams, depth_range=rng, **cfg.neighbour_options)
+            nbrs = select_neighbours(i, poses, cams, depth_range=rng, **options)
             n = len(nbrs)
             if kf.used:
                 due = n > len(kf.used) and n > kf.failed_with

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, cast
 
 import cv2
 import numpy as np
@@ -70,8 +70,8 @@ class OnnxSkySegmenter:
         s = self.spec
         h, w = rgb.shape[:2]
         size = s.input_size or (w, h)
-        x = to_input_tensor(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), s.color_order, s.mean, s.std,
-                            s.layout)  # fmt: skip
+        resized = cast('NDArray[np.uint8]', cv2.resize(rgb, size, interpolation=cv2.INTER_AREA))  # uint8
+        x = to_input_tensor(resized, s.color_order, s.mean, s.std, s.layout)
         out = np.asarray(self.session.run(None, {self.input_name: x})[s.output_index])
         out = out[0] if out.ndim == 4 else out
         if s.output == 'sky_logit':

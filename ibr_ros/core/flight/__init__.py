@@ -13,6 +13,7 @@ from ibr_ros.core.flight.keyframes import (
     blur_score,
     select_keyframes,
     select_keyframes_for_target,
+    target_baseline,
 )
 from ibr_ros.core.flight.stamps import (
     StampAssembler,
@@ -42,4 +43,5 @@ __all__ = [
     'blur_score',
     'select_keyframes',
     'select_keyframes_for_target',
+    'target_baseline',
 ]

@@ -32,6 +32,7 @@ __all__ = [
     'blur_score',
     'select_keyframes',
     'select_keyframes_for_target',
+    'target_baseline',
 ]
 
 T = TypeVar('T')
@@ -83,6 +84,30 @@ class KeyframeConfig:
             raise ValueError(f'KeyframeConfig.blur_ratio must be in [0, 1], got {self.blur_ratio}')
         if self.blur_window < 1:
             raise ValueError(f'KeyframeConfig.blur_window must be >= 1, got {self.blur_window}')
+
+
+def target_baseline(target_keyframes: int, expected_path_m: float) -> float | None:
+    """The live keyframe baseline (m) for about ``target_keyframes`` over ``expected_path_m`` metres of
+    flight path: ``expected_path_m / target_keyframes``; None when ``target_keyframes`` is 0 (off).
+
+    Live, the flight's length is unknown: this ONE threshold replaces ``baseline_ratio`` x the scene
+    depth and ``min_baseline_m``. Offline, :func:`select_keyframes_for_target` meets the target over
+    the known flight instead.
+
+    Raises:
+        ValueError: ``target_keyframes`` < 0, or > 0 without ``expected_path_m`` > 0.
+
+    """
+    if target_keyframes < 0:
+        raise ValueError(f'parameter target_keyframes must be >= 0 (0 = off), got {target_keyframes}')
+    if not target_keyframes:
+        return None
+    if not expected_path_m > 0:
+        raise ValueError(
+            f'parameter target_keyframes {target_keyframes} needs expected_path_m > 0, the planned flight '
+            f'path length in metres (the live node cannot know the flight length), got {expected_path_m}'
+        )
+    return float(expected_path_m) / target_keyframes
 
 
 @dataclass(frozen=True)

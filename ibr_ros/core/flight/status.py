@@ -110,7 +110,7 @@ class FlightStatus:
                     raise ValueError(f'status field {key}: {value!r} is not an integer') from None
             else:
                 values[key] = value
-        status = cls(**values)  # type: ignore[arg-type]
+        status = cls(**values)  # type: ignore[arg-type]  # str/int fields; their values are checked below
         if status.pose_source not in ('unknown', 'pose', 'none'):
             raise ValueError(f'status field pose_source: {status.pose_source!r} is not unknown, pose or none')
         if status.camera not in CAMERA_STATES:

@@ -9,6 +9,7 @@ Distortion models: ``plumb_bob`` (k1, k2, t1, t2, k3) and ``rational_polynomial`
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -102,7 +103,12 @@ class PinholeCamera:
         if not 0.0 < hfov_deg < 180.0:
             raise CameraError(f'hfov_deg must be in (0, 180), got {hfov_deg}')
         f = 0.5 * width / np.tan(np.radians(hfov_deg) / 2)
-        return cls(width, height, [[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]])
+        return cls(width, height, np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]]))
+
+    @property
+    def projection(self) -> NDArray[np.float64]:
+        """``p``, the 3x4 projection matrix: never None once constructed (None means ``[K | 0]``)."""
+        return cast('NDArray[np.float64]', self.p)
 
     @property
     def fx(self) -> float:
@@ -137,7 +143,7 @@ class PinholeCamera:
             and np.array_equal(self.k, other.k)
             and np.array_equal(self.d, other.d)
             and np.array_equal(self.r, other.r)
-            and np.array_equal(self.p, other.p)
+            and np.array_equal(self.projection, other.projection)
         )
 
     def scaled(self, sx: float, sy: float | None = None) -> PinholeCamera:
@@ -150,9 +156,9 @@ class PinholeCamera:
         k = s @ self.k
         k[0, 2] = (self.k[0, 2] + 0.5) * sx - 0.5
         k[1, 2] = (self.k[1, 2] + 0.5) * sy - 0.5
-        p = s @ self.p
-        p[0, 2] = (self.p[0, 2] + 0.5) * sx - 0.5
-        p[1, 2] = (self.p[1, 2] + 0.5) * sy - 0.5
+        p = s @ self.projection
+        p[0, 2] = (self.projection[0, 2] + 0.5) * sx - 0.5
+        p[1, 2] = (self.projection[1, 2] + 0.5) * sy - 0.5
         return replace(
             self,
             width=round(self.width * sx),

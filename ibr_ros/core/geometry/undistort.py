@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import replace
+from typing import cast
 
 import cv2
 import numpy as np
@@ -26,7 +27,8 @@ def _maps(
     D = np.frombuffer(d)
     new_k, _ = cv2.getOptimalNewCameraMatrix(K, D, (width, height), alpha, (width, height))
     map1, map2 = cv2.initUndistortRectifyMap(K, D, None, new_k, (width, height), cv2.CV_16SC2)
-    return new_k, map1, map2
+    # cv2's stubs give no dtypes: these are OpenCV's (CV_64F matrix, CV_16SC2 and CV_16UC1 maps).
+    return cast('tuple[NDArray[np.float64], NDArray[np.int16], NDArray[np.uint16]]', (new_k, map1, map2))
 
 
 def undistort_image(

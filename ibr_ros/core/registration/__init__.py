@@ -1,5 +1,5 @@
 """Registration of pose-less images: pycolmap structure from motion and the incremental session
-that keeps one frame across updates.
+that keeps one frame across updates, and the depth_refiner's SfM-mode trigger.
 """
 
 from __future__ import annotations
@@ -24,17 +24,29 @@ from ibr_ros.core.registration.sfm_session import (
     SfmSession,
     SfmUpdate,
 )
+from ibr_ros.core.registration.trigger import (
+    SFM_MODES,
+    SfmConfig,
+    SfmMode,
+    SfmTrigger,
+    StatusDecision,
+)
 
 __all__ = [
+    'SFM_MODES',
     'CameraModel',
     'Frame',
     'GpsAlignment',
     'ScaleHint',
+    'SfmConfig',
     'SfmError',
+    'SfmMode',
     'SfmOptions',
     'SfmResult',
     'SfmSession',
+    'SfmTrigger',
     'SfmUpdate',
+    'StatusDecision',
     'pycolmap',
     'register_images',
     'robust_similarity',

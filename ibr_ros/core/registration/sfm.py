@@ -33,7 +33,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import cv2
 import numpy as np
@@ -42,7 +42,10 @@ from numpy.typing import NDArray
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.registration.colmap import pycolmap as _import_pycolmap
 
-pycolmap = _import_pycolmap()
+if TYPE_CHECKING:  # the module itself, for its stubs; at run time through the signal-safe import
+    import pycolmap
+else:
+    pycolmap = _import_pycolmap()
 
 __all__ = [
     'CameraModel',
@@ -461,7 +464,7 @@ def _prefer_prior_focal(
 def _pinhole(cam: pycolmap.Camera, model: str) -> PinholeCamera:
     (ifx, ify, icx, icy), idist = _MODELS[model]
     p = np.asarray(cam.params, dtype=np.float64)
-    k = [[p[ifx], 0.0, p[icx] - 0.5], [0.0, p[ify], p[icy] - 0.5], [0.0, 0.0, 1.0]]
+    k = np.array([[p[ifx], 0.0, p[icx] - 0.5], [0.0, p[ify], p[icy] - 0.5], [0.0, 0.0, 1.0]])
     d = np.zeros(5)
     d[: len(idist)] = p[list(idist)]
     return PinholeCamera(int(cam.width), int(cam.height), k, d, 'plumb_bob')
@@ -595,8 +598,12 @@ def register_images(
         timing[stage] = t1 - t0
         t0 = t1
 
-    tmp = None if workdir is not None else tempfile.mkdtemp(prefix='ibr_sfm_')
-    root = Path(workdir) if workdir is not None else Path(tmp)  # type: ignore[arg-type]
+    tmp: str | None = None
+    if workdir is not None:
+        root = Path(workdir)
+    else:
+        tmp = tempfile.mkdtemp(prefix='ibr_sfm_')
+        root = Path(tmp)
     old_level = pycolmap.logging.minloglevel
     if not o.verbose:
         pycolmap.logging.minloglevel = max(old_level, 2)  # errors only

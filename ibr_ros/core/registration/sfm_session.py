@@ -41,7 +41,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
 import cv2
 import numpy as np
@@ -230,7 +230,7 @@ class SfmSession:
             self._scale = self.max_side / side if 0 < self.max_side < side else 1.0
         if self._scale != 1.0:
             w, h = round(a.shape[1] * self._scale), round(a.shape[0] * self._scale)
-            a = cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA)
+            a = cast('NDArray[np.uint8]', cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA))  # keeps uint8
         self._views[stamp] = _View(np.ascontiguousarray(a), gps)
 
     # -- registration -----------------------------------------------------------------------------
@@ -266,6 +266,7 @@ class SfmSession:
                 f'only {len(new)} of {len(stamps)} views registered (need {self.min_registered})', t0, res
             )
         reset, rms, reason = False, math.nan, 'ok'
+        frame: Frame | None
         if self._frame is None or (self._frame == 'sfm' and res.metric):
             m, frame, reset = self._define_frame(res), 'enu' if res.metric else 'sfm', True
             reason = 'frame defined'

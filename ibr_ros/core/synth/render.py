@@ -21,7 +21,9 @@ mask and labels always come from the pixel-centre ray.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Literal, TypedDict
 
 import numpy as np
 from numba import njit, prange
@@ -70,8 +72,18 @@ class SynthFrame:
     label: NDArray[np.uint8]
 
 
-_OPTS = {'cache': True, 'fastmath': False, 'error_model': 'numpy', 'nogil': True}
-_INLINE = {**_OPTS, 'inline': 'always'}
+class _JitOptions(TypedDict, total=False):
+    """The `njit` keywords used here, typed so that `njit(**_OPTS)` type-checks."""
+
+    cache: bool
+    fastmath: bool
+    error_model: Literal['python', 'numpy']
+    nogil: bool
+    inline: Literal['never', 'always']
+
+
+_OPTS: _JitOptions = {'cache': True, 'fastmath': False, 'error_model': 'numpy', 'nogil': True}
+_INLINE: _JitOptions = {**_OPTS, 'inline': 'always'}
 _INF = math.inf
 
 # Scalar parameter indices (compile-time constants in the kernels).
@@ -1012,6 +1024,7 @@ def _hill_bins(hills: NDArray[np.float64], cam_xy: NDArray[np.float64] | None, n
     half = np.where(dist > rmax, np.arcsin(np.clip(rmax / np.maximum(dist, 1e-9), 0.0, 1.0)), np.pi)
     width = 2 * np.pi / nbins
     lists: list[list[int]] = [[] for _ in range(nbins)]
+    cover: Iterable[int]
     for k in range(hills.shape[0]):
         if half[k] >= np.pi / 2:
             cover = range(nbins)

@@ -426,10 +426,12 @@ def build_scene(cfg: SceneConfig) -> Scene:
                 s = -e + rng.uniform(3, 10)
                 while s < e:
                     if np.min(np.abs(roads - s)) > hw + sw + 3:
-                        p = (r + sgn * side, s) if axis == 0 else (s, r + sgn * side)
-                        sites.append(p)
+                        site = (r + sgn * side, s) if axis == 0 else (s, r + sgn * side)
+                        sites.append(site)
                     s += rng.uniform(9.0, 14.0) / max(dens, 0.3)
-    trunks, sph, rgbs = [], [], []
+    trunks: list[list[float]] = []
+    sph: list[list[float]] = []
+    rgbs: list[NDArray[np.float64]] = []
     for x, y in sites:
         if _box_footprint_dist(boxes_a, x, y) < 4.5:
             continue

@@ -69,14 +69,14 @@ import numpy as np
 
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import write_atomic
-from ibr_ros.jobs.process.evaluate import _evaluate
-from ibr_ros.jobs.process.frames import Keyframe, _subsample
+from ibr_ros.jobs.process.evaluate import evaluate_ground_truth
+from ibr_ros.jobs.process.frames import Keyframe, subsample
 from ibr_ros.jobs.process.options import ProcessOptions, Progress
-from ibr_ros.jobs.process.output import OUT_TOPICS, _json_default, _markdown, _write_bag
-from ibr_ros.jobs.process.params import NODES, _configs, load_params
-from ibr_ros.jobs.process.refine import _refine_all
-from ibr_ros.jobs.process.render import NovelView, _render_all
-from ibr_ros.jobs.process.sfm import GPS_MAX_GAP_S, _register
+from ibr_ros.jobs.process.output import OUT_TOPICS, json_default, summary_markdown, write_bag
+from ibr_ros.jobs.process.params import NODES, load_params, process_configs
+from ibr_ros.jobs.process.refine import refine_all
+from ibr_ros.jobs.process.render import NovelView, render_all
+from ibr_ros.jobs.process.sfm import GPS_MAX_GAP_S, register_keyframes
 
 __all__ = [
     'GPS_MAX_GAP_S',
@@ -108,19 +108,19 @@ def process_bag(
         raise UserError(f'--max-keyframes must be >= 1, got {o.max_keyframes}')
     _check_out(out, o.overwrite)
     params = load_params(o.params)
-    cfg = _configs(params, o)
+    cfg = process_configs(params, o)
     threads = _set_threads(o.threads)
     t_start = time.perf_counter()
-    sub = _subsample(bag, cfg, o, progress)
+    sub = subsample(bag, cfg, o, progress)
     keyframes = sub.keyframes
     t_sub = time.perf_counter()
     sfm_info = None
     if sub.sfm_why is not None:
-        keyframes, cfg, sfm_info = _register(sub, cfg, o.threads, progress)
+        keyframes, cfg, sfm_info = register_keyframes(sub, cfg, o.threads, progress)
     t_sfm = time.perf_counter()
-    refine_info = _refine_all(keyframes, cfg, progress)
+    refine_info = refine_all(keyframes, cfg, progress)
     t_ref = time.perf_counter()
-    views, render_info = _render_all(keyframes, cfg, o.views, progress)
+    views, render_info = render_all(keyframes, cfg, o.views, progress)
     t_render = time.perf_counter()
     # Everything goes into a staging folder next to out, renamed to out once complete: an
     # interrupted or failed run leaves the previous result as it was.
@@ -130,11 +130,11 @@ def process_bag(
     stage.mkdir(parents=True)
     try:
         model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
-        topic_counts = _write_bag(stage / 'bag', keyframes, views, cfg, model_frame)
+        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame)
         t_write = time.perf_counter()
         previews = stage / 'previews'
         previews.mkdir()
-        gt = _evaluate(bag, keyframes, views, previews, progress, sfm=sfm_info is not None)
+        gt = evaluate_ground_truth(bag, keyframes, views, previews, progress, sfm=sfm_info is not None)
         t_eval = time.perf_counter()
 
         refined = [k for k in keyframes if k.depth is not None]
@@ -193,8 +193,8 @@ def process_bag(
             ],
             'ground_truth': gt,
         }
-        write_atomic(stage / 'summary.json', json.dumps(summary, indent=2, default=_json_default) + '\n')
-        write_atomic(stage / 'summary.md', _markdown(summary))
+        write_atomic(stage / 'summary.json', json.dumps(summary, indent=2, default=json_default) + '\n')
+        write_atomic(stage / 'summary.md', summary_markdown(summary))
         _commit(stage, out)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
@@ -248,8 +248,9 @@ def _set_threads(threads: int | None) -> int:
     import numba
 
     if threads is not None:
-        if not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
-            raise UserError(f'--threads must be in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads}')
+        most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at run time by numba.config
+        if not 1 <= threads <= most:
+            raise UserError(f'--threads must be in 1..{most}, got {threads}')
         numba.set_num_threads(threads)
         cv2.setNumThreads(threads)
     return int(numba.get_num_threads())

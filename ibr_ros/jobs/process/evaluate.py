@@ -51,7 +51,7 @@ def _label(bgr: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, object]] | None:
+def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, float]] | None:
     """SfM mode: the similarity from SfM's frame to the bag's poses (ground truth), None without them.
 
     Rotation from the camera orientations (well determined even for a near-collinear path, where
@@ -79,7 +79,7 @@ def _sfm_to_truth(keyframes: list[Keyframe]) -> tuple[np.ndarray, dict[str, obje
     }
 
 
-def _evaluate(
+def evaluate_ground_truth(
     bag: Path,
     keyframes: list[Keyframe],
     views: list[NovelView],

@@ -25,16 +25,12 @@ from ibr_ros.core.flight.keyframes import (
     select_keyframes_for_target,
 )
 from ibr_ros.core.flight.stamps import StampAssembler
-from ibr_ros.core.geometry.camera import CameraError, PinholeCamera
-from ibr_ros.core.geometry.transforms import GeometryError
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions, Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
-
-
-BAD_MESSAGE = (msg_utils.MessageError, CameraError, GeometryError, ValueError)
 
 
 @dataclass
@@ -59,7 +55,9 @@ class Keyframe:
 
 
 @dataclass
-class _Subsampled:
+class Subsampled:
+    """The keyframes :func:`subsample` chose, with what it read and counted on the way."""
+
     keyframes: list[Keyframe]
     counts: Counter
     bad: Counter
@@ -82,6 +80,20 @@ class _Frame:
     camera_frame: str
     pose: tuple[np.ndarray, str] | None  # None without poses (SfM mode)
 
+    @property
+    def rgb(self) -> np.ndarray:
+        """The decoded image (a frame that was wanted)."""
+        if self.image is None:
+            raise ValueError(f'frame {self.stamp} ns was not decoded')
+        return self.image
+
+    @property
+    def t_wc(self) -> np.ndarray:
+        """The camera-to-world pose (a flight with poses)."""
+        if self.pose is None:
+            raise ValueError(f'frame {self.stamp} ns has no pose')
+        return self.pose[0]
+
 
 @dataclass
 class _Reading:
@@ -99,7 +111,7 @@ class _Reading:
 def _frames(
     reader: BagReader,
     topics: dict[str, str | None],
-    cfg: _Configs,
+    cfg: ProcessConfigs,
     poseless: bool,
     reading: _Reading,
     progress: Progress | None,
@@ -122,7 +134,7 @@ def _frames(
         LOG.debug(detail)
 
     fields = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
-    assembler = StampAssembler(fields, cfg.max_pending, incomplete, supersede=True)
+    assembler = StampAssembler(fields, cfg.subsampler.max_pending, incomplete, supersede=True)
     to_pose = (
         msg_utils.odometry_to_matrix if topics['pose_type'] == ODOMETRY else msg_utils.pose_stamped_to_matrix
     )
@@ -156,15 +168,16 @@ def _frames(
                     bad['navsat (no fix or altitude)'] += 1
                 continue
             else:
-                value = (to_pose(msg), msg.header.frame_id or 'map')
-        except BAD_MESSAGE as exc:
+                pose = to_pose(msg)
+                value = (pose, msg.header.frame_id or 'map')
+        except msg_utils.CONVERSION_ERRORS as exc:
             bad[field] += 1
             if field == 'image':
                 reading.image_ok.append(False)
             LOG.debug('bad %s message at %d ns: %s', field, stamp, exc)
             continue
         if field == 'pose' and poseless:  # ignored, but the ground truth of a synthetic bag
-            reading.bag_poses[stamp] = value[0]  # type: ignore[index]
+            reading.bag_poses[stamp] = pose
             continue
         if (f := assembler.put(stamp, field, value)) is None or (wanted is not None and stamp not in wanted):
             continue
@@ -180,7 +193,7 @@ def _frames(
 
 
 def _select_topics(
-    reader: BagReader, o: ProcessOptions, cfg: _Configs
+    reader: BagReader, o: ProcessOptions, cfg: ProcessConfigs
 ) -> tuple[dict[str, str | None], str | None]:
     """Image, camera_info, pose and NavSatFix topics (given or detected by type) and their types, and
     why SfM mode is used (None: it is not).
@@ -204,14 +217,14 @@ def _select_topics(
     no_pose = 'no pose topic (geometry_msgs/msg/PoseStamped or nav_msgs/msg/Odometry; --pose-topic)'
     if o.sfm:
         why: str | None = '--sfm'
-    elif cfg.pose_source == 'none':
+    elif cfg.subsampler.pose_source == 'none':
         why = "frame_subsampler pose_source 'none'"
     elif sel.pose is None and cfg.sfm_mode == 'off':
         raise UserError(
             f'{no_pose} and depth_refiner sfm_mode is off: frames without poses are not refined '
             f'(sfm_mode auto or --sfm registers them with SfM); {where}'
         )
-    elif sel.pose is None and cfg.pose_source == 'topic':
+    elif sel.pose is None and cfg.subsampler.pose_source == 'topic':
         raise UserError(
             f"{no_pose} and frame_subsampler pose_source is 'topic': it never selects keyframes without "
             f"poses (set it to 'auto' or pass --sfm); {where}"
@@ -231,11 +244,12 @@ def _select_topics(
     return out, why
 
 
-def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress | None) -> _Subsampled:
+def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progress | None) -> Subsampled:
     """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
     mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
     :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the whole flight instead (two passes).
     """
+    fs = cfg.subsampler
     decisions: Counter = Counter()
     keyframes: list[Keyframe] = []
     reading = _Reading()
@@ -246,7 +260,7 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
         t_wc, pose_frame = pose if pose is not None and sfm_why is None else (np.full((4, 4), np.nan), '')
         bag_pose = pose[0] if pose is not None else reading.bag_poses.get(frame.stamp)
         camera_frame = frame.camera_frame or 'camera_optical'
-        image: np.ndarray = frame.image  # type: ignore[assignment]  # decoded: a wanted frame
+        image = frame.rgb
         bag_t_wc = bag_pose if sfm_why is not None else None
         keyframes.append(
             Keyframe(
@@ -260,16 +274,16 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
         topics, sfm_why = _select_topics(reader, o, cfg)
         poseless = topics['pose'] is None or o.sfm
         frames = _frames(reader, topics, cfg, poseless, reading, progress)
-        scene_depth = cfg.subsampler_scene_depth or None
+        scene_depth = fs.scene_depth_m or None
         if poseless:
-            if cfg.target_keyframes:
+            if fs.target_keyframes:
                 LOG.warning(
-                    'target_keyframes %d ignored: keyframes chosen without poses', cfg.target_keyframes
+                    'target_keyframes %d ignored: keyframes chosen without poses', fs.target_keyframes
                 )
-            selection: dict[str, object] = {'method': 'interval', 'interval_s': cfg.poseless_interval_s}
-            interval = IntervalSelector(cfg.poseless_interval_s, cfg.keyframes)
+            selection: dict[str, object] = {'method': 'interval', 'interval_s': fs.poseless_interval_s}
+            interval: IntervalSelector[_Frame] = IntervalSelector(fs.poseless_interval_s, fs.keyframes)
             for f in frames:
-                for _, chosen in interval.push(f.stamp, blur_score(f.image), f):  # type: ignore[arg-type]
+                for _, chosen in interval.push(f.stamp, blur_score(f.rgb), f):
                     stopped = stopped or keep(chosen, 'sharpest of its window')
                 if stopped:
                     break
@@ -282,27 +296,27 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
             for k in keyframes:  # poses read after the frame's image
                 if k.bag_t_wc is None and k.stamp in reading.bag_poses:
                     k.bag_t_wc = reading.bag_poses[k.stamp]
-        elif cfg.target_keyframes:
+        elif fs.target_keyframes:
             # First pass: stamps, poses and blur scores of every frame; the images are not kept.
-            seen = [(f.stamp, f.pose[0], blur_score(f.image)) for f in frames]  # type: ignore[index, arg-type]
+            seen = [(f.stamp, f.t_wc, blur_score(f.rgb)) for f in frames]
             t0 = time.perf_counter()
-            chosen = select_keyframes_for_target(
+            target = select_keyframes_for_target(
                 [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
-                target=cfg.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=cfg.keyframes,
+                target=fs.target_keyframes, scene_depth_m=[scene_depth] * len(seen), config=fs.keyframes,
             ) if seen else TargetSelection([], 1.0, [])  # fmt: skip
-            picked, scale, decided = chosen.indices, chosen.scale, chosen.decisions
+            picked, scale, decided = target.indices, target.scale, target.decisions
             decisions.update(d.reason for d in decided)
             reasons = {seen[i][0]: decided[i].reason for i in picked}
             if o.max_keyframes is not None and len(picked) > o.max_keyframes:
                 picked, stopped = picked[: o.max_keyframes], True
             selection = {
                 'method': 'select_keyframes',
-                'target': cfg.target_keyframes,
+                'target': fs.target_keyframes,
                 'frames': len(seen),
                 'selected': len(reasons),
                 'scale': scale,
-                'baseline_ratio': cfg.keyframes.baseline_ratio * scale,
-                'min_baseline_m': cfg.keyframes.min_baseline_m * scale,
+                'baseline_ratio': fs.keyframes.baseline_ratio * scale,
+                'min_baseline_m': fs.keyframes.min_baseline_m * scale,
                 'scene_depth_m': scene_depth,
                 'seconds': time.perf_counter() - t0,
             }
@@ -322,9 +336,9 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
                 )
         else:
             selection = {'method': 'streaming'}
-            selector = KeyframeSelector(cfg.keyframes)
+            selector = KeyframeSelector(fs.keyframes)
             for f in frames:
-                d = selector.decide(f.stamp, f.pose[0], blur_score(f.image), scene_depth)  # type: ignore[index, arg-type]
+                d = selector.decide(f.stamp, f.t_wc, blur_score(f.rgb), scene_depth)
                 decisions[d.reason] += 1
                 if d.keep and keep(f, d.reason):
                     stopped = True
@@ -345,6 +359,6 @@ def _subsample(bag: Path, cfg: _Configs, o: ProcessOptions, progress: Progress |
             why = f'no keyframe among {counts["frames"]} frames ({dict(decisions)})'
         names = ', '.join(str(topics[k]) for k in needed if topics[k] is not None)
         raise UserError(f'{bag}: {why} (topics {names})')
-    return _Subsampled(
+    return Subsampled(
         keyframes, counts, bad, decisions, topics, sfm_why, poseless, reading.fixes, stopped, selection
     )

@@ -11,8 +11,9 @@ import numpy as np
 import msg_utils
 from ibr_ros.bag import BagWriter, OfferedQos
 from ibr_ros.jobs.process.frames import Keyframe
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.process.render import NovelView
+from msg_utils.flavor import Flavor
 
 #: Output topics (fully qualified: what the graph's relative names resolve to in the root namespace).
 #: QoS the graph's publishers offer (ibr_ros.nodes.common.model_qos / reliable_qos), recorded per topic
@@ -32,15 +33,15 @@ OUT_TOPICS = {
 }
 
 
-def _write_bag(
+def write_bag(
     path: Path,
     keyframes: list[Keyframe],
     views: list[NovelView],
-    cfg: _Configs,
+    cfg: ProcessConfigs,
     model_frame: str,
 ) -> dict[str, int]:
     """The output bag (a new ``path``), every message logged at its header stamp, in time order."""
-    rb = {'flavor': 'rosbags'}
+    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
     events: list[tuple[int, int, str, object]] = []
     for k in keyframes:
         header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
@@ -86,7 +87,8 @@ def _selection_line(sel: dict) -> str:
     )
 
 
-def _markdown(s: dict) -> str:
+def summary_markdown(s: dict) -> str:
+    """``summary.md``: the summary ``s`` (as in ``summary.json``) as Markdown tables."""
     t, pk = s['timings_s'], s['seconds_per_keyframe']
 
     def f(v: object, fmt: str = '.3f') -> str:
@@ -157,7 +159,8 @@ def _markdown(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def _json_default(value: object) -> object:
+def json_default(value: object) -> object:
+    """``json.dumps`` ``default`` of the summary: numpy scalars as Python numbers, NaN and inf as null."""
     if isinstance(value, (np.floating, np.integer)):
         return value.item()
     if isinstance(value, float) and not math.isfinite(value):

@@ -5,23 +5,19 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TypeVar
 
 import yaml
 
-from ibr_ros.core.depth.mvs import MvsOptions
 from ibr_ros.core.depth.refine import RefinerConfig
-from ibr_ros.core.depth.schedule import ScheduleConfig, parse_depth_range
-from ibr_ros.core.flight.keyframes import KeyframeConfig
-from ibr_ros.core.flight.status import POSE_MODES
+from ibr_ros.core.depth.schedule import ScheduleConfig
 from ibr_ros.core.registration.sfm_session import ScaleHint
 from ibr_ros.core.render import RenderConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.node_config import VIEW_RENDERER
-from ibr_ros.node_config.depth_refiner import refiner_config, sfm_settings
+from ibr_ros.node_config import DEPTH_REFINER, FRAME_SUBSAMPLER, VIEW_RENDERER, FrameSubsamplerConfig
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 T = TypeVar('T')
@@ -29,7 +25,8 @@ T = TypeVar('T')
 
 #: The nodes whose parameters ``ibr process`` reads.
 NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
-REFINER_MODEL_PARAMETERS = ('mono', 'mono_model', 'mono_preset', 'sky', 'sky_model', 'sky_preset')
+#: depth_refiner parameters ``ibr process`` sets itself: one worker, the whole flight known.
+REFINER_OFFLINE = {'num_workers': 1, 'worker_index': 0, 'refine_again': False}
 
 
 def _named(node: str, fn: Callable[..., T], *args: object) -> T:
@@ -133,11 +130,11 @@ def load_params(params_file: Path | None = None, config: Path | None = None) -> 
 
 
 @dataclass(frozen=True)
-class _Configs:
-    keyframes: KeyframeConfig
-    subsampler_scene_depth: float
-    target_keyframes: int  # 0 = off (the streaming selector)
-    max_pending: int
+class ProcessConfigs:
+    """The core configurations of one ``ibr process`` run, built from the node parameters."""
+
+    # target_keyframes: ProcessOptions' when given; 0 = the streaming selector
+    subsampler: FrameSubsamplerConfig
     schedule: ScheduleConfig
     flush: bool
     refiner: RefinerConfig
@@ -145,82 +142,49 @@ class _Configs:
     out_size: tuple[int, int, float]  # width, height, hfov_deg; 0 = the last keyframe's
     min_valid: float
     view_frame: str
-    pose_source: str
-    poseless_interval_s: float
     sfm_mode: str
     sfm_min_keyframes: int
     sfm_max_side: int
     sfm_scale: ScaleHint | None
 
 
-def _configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> _Configs:
+def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> ProcessConfigs:
     """The core configurations, mapped from the node parameters exactly as the nodes map them."""
     fs, dr, vr = (params[n] for n in NODES)
     try:
-        kf = KeyframeConfig(
-            **{k: float(fs[k]) for k in ('baseline_ratio', 'min_baseline_m', 'max_rotation_deg')},
-            max_interval_s=float(fs['max_interval_s']),
-            min_interval_s=float(fs['min_interval_s']),
-            blur_ratio=float(fs['blur_ratio']),
-        )
-        mvs = MvsOptions(max_neighbours=int(dr['max_neighbours']))
-        schedule = ScheduleConfig(
-            min_neighbours=int(dr['min_neighbours']),
-            depth_range=parse_depth_range(dr['depth_range']),  # type: ignore[arg-type]
-            scene_depth_m=float(dr['scene_depth_m']),
-            near_ratio=float(dr['near_ratio']),
-            far_ratio=float(dr['far_ratio']),
-            mvs=mvs,
-        )
-        sfm_mode = str(dr['sfm_mode'])
-        scale_hint = _named(
-            'depth_refiner', sfm_settings, sfm_mode, str(dr['sfm_scale']), float(dr['sfm_scale_m'])
-        )
-        pose_source = str(fs['pose_source'])
-        if pose_source not in POSE_MODES:
-            raise UserError(
-                f'frame_subsampler pose_source must be one of {", ".join(POSE_MODES)}, got {pose_source!r}'
-            )
-        poseless_interval_s = float(fs['poseless_interval_s'])
-        sfm_min_keyframes = int(dr['sfm_min_keyframes'])
-        sfm_max_side = int(dr['sfm_max_side'])
+        subsampler = FRAME_SUBSAMPLER.config(fs, where='frame_subsampler.')
+        refining = _named('depth_refiner', DEPTH_REFINER.config, {**dr, **REFINER_OFFLINE})
+        poseless_interval_s = subsampler.poseless_interval_s
+        sfm_min_keyframes, sfm_max_side = refining.sfm.min_keyframes, refining.sfm.max_side
         if poseless_interval_s <= 0 or sfm_min_keyframes < 3 or sfm_max_side < 0:
             raise UserError(
                 'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
                 f'sfm_max_side >= 0, got {poseless_interval_s}, {sfm_min_keyframes}, {sfm_max_side}'
             )
-        refiner = _named(
-            'depth_refiner', refiner_config, *(str(dr[k]) for k in REFINER_MODEL_PARAMETERS), mvs
-        )
-        render = VIEW_RENDERER.config(vr, where='view_renderer.').render
+        viewing = VIEW_RENDERER.config(vr, where='view_renderer.')
     except (ValueError, TypeError, KeyError) as exc:
         raise UserError(f'bad node parameters: {exc}') from exc
     size = (
-        int(vr['width']) if o.width is None else o.width,
-        int(vr['height']) if o.height is None else o.height,
-        float(vr['hfov_deg']) if o.hfov_deg is None else o.hfov_deg,
+        viewing.width if o.width is None else o.width,
+        viewing.height if o.height is None else o.height,
+        viewing.hfov_deg if o.hfov_deg is None else o.hfov_deg,
     )
     if size[0] < 0 or size[1] < 0 or not 0 <= size[2] < 180:
         raise UserError(f'novel view size {size[0]}x{size[1]}, hfov {size[2]} deg: need >= 0 and hfov < 180')
-    target = int(fs['target_keyframes']) if o.target_keyframes is None else o.target_keyframes
+    target = subsampler.target_keyframes if o.target_keyframes is None else o.target_keyframes
     if target < 0:
         raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
-    return _Configs(
-        keyframes=kf,
-        subsampler_scene_depth=float(fs['scene_depth_m']),
-        target_keyframes=target,
-        max_pending=int(fs['max_pending']),
-        schedule=schedule,
+    return ProcessConfigs(
+        subsampler=replace(subsampler, target_keyframes=target),
+        schedule=refining.schedule,
         flush=True,  # offline the flight has ended: as live once keyframes/status says so
-        refiner=refiner,
-        render=render,
+        refiner=refining.refiner,
+        render=viewing.render,
         out_size=size,
-        min_valid=float(vr['min_valid_fraction']),
-        view_frame=str(vr['frame_id']),
-        pose_source=pose_source,
-        poseless_interval_s=poseless_interval_s,
-        sfm_mode=sfm_mode,
+        min_valid=viewing.min_valid_fraction,
+        view_frame=viewing.frame_id,
+        sfm_mode=refining.sfm.mode,
         sfm_min_keyframes=sfm_min_keyframes,
         sfm_max_side=sfm_max_side,
-        sfm_scale=scale_hint,
+        sfm_scale=refining.sfm.scale,
     )

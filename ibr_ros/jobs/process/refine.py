@@ -3,21 +3,23 @@
 from __future__ import annotations
 
 import logging
-import time
 
 from ibr_ros.core.depth.mono import MonoModelError
-from ibr_ros.core.depth.mvs import MvsView, compute_depth_maps
-from ibr_ros.core.depth.refine import DepthRefiner, RefineError
+from ibr_ros.core.depth.mvs import MvsView
+from ibr_ros.core.depth.refine import DepthRefiner, refine_job
 from ibr_ros.core.depth.schedule import RefineScheduler
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.process.frames import BAD_MESSAGE, Keyframe
+from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
+from msg_utils import CONVERSION_ERRORS
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 
 
-def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | None) -> dict[str, object]:
+def refine_all(
+    keyframes: list[Keyframe], cfg: ProcessConfigs, progress: Progress | None
+) -> dict[str, object]:
     """MVS + refinement of every keyframe, oldest first, with the whole flight known."""
     by_stamp = {k.stamp: k for k in keyframes}
     scheduler = RefineScheduler(cfg.schedule)
@@ -34,7 +36,7 @@ def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | N
     while True:
         try:
             job = scheduler.next_job(flush=cfg.flush)
-        except BAD_MESSAGE as exc:  # a degenerate keyframe set (e.g. coincident cameras)
+        except CONVERSION_ERRORS as exc:  # a degenerate keyframe set (e.g. coincident cameras)
             raise UserError(f'cannot choose MVS neighbours: {exc}') from exc
         for w in scheduler.pop_warnings():
             LOG.warning(w)
@@ -42,26 +44,20 @@ def _refine_all(keyframes: list[Keyframe], cfg: _Configs, progress: Progress | N
             break
         attempts += 1
         kf = by_stamp[job.stamp]
-        t0 = time.perf_counter()
-        mvs = compute_depth_maps(job.views, options=cfg.refiner.mvs, depth_range=job.depth_range)[0]
-        t1 = time.perf_counter()
-        try:
-            r = refiner.refine_from_mvs(job.view, mvs.depth)
-        except RefineError as exc:
+        result = refine_job(refiner, job, cfg.schedule.mvs)
+        kf.timings_s = dict(result.timings_s)
+        if result.refined is None:
             scheduler.failed(job)
-            failures[job.stamp] = f'{len(job.neighbours)} neighbours, MVS {mvs.reason or "ok"}: {exc}'
+            failures[job.stamp] = f'{result.context}: {result.error}'
             LOG.warning('keyframe %d ns not refined: %s', job.stamp, failures[job.stamp])
-            kf.timings_s = {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}
             continue
-        t2 = time.perf_counter()
         scheduler.done(job)
         failures.pop(job.stamp, None)
-        kf.depth = r.depth
+        kf.depth = result.refined.depth
         kf.neighbours = job.neighbours
-        kf.timings_s = {'mvs': t1 - t0, 'refine': t2 - t1}
         LOG.info(
             'refined keyframe %d/%d (%d ns) with %d neighbours in %.2f s',
-            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), t2 - t0,
+            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), result.seconds,
         )  # fmt: skip
         if progress is not None:
             progress('keyframes', len(scheduler.refined()), len(keyframes))

@@ -12,7 +12,7 @@ from ibr_ros.core.geometry.path import interpolate_path, path_stamps
 from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 
 
 @dataclass
@@ -28,8 +28,8 @@ class NovelView:
     render_s: float = 0.0
 
 
-def _render_all(
-    keyframes: list[Keyframe], cfg: _Configs, n_views: int, progress: Progress | None
+def render_all(
+    keyframes: list[Keyframe], cfg: ProcessConfigs, n_views: int, progress: Progress | None
 ) -> tuple[list[NovelView], dict[str, object]]:
     """The view_renderer's model of the refined keyframes and its replies to the path queries."""
     model = [k for k in keyframes if k.depth is not None]

@@ -14,9 +14,9 @@ from ibr_ros.core.geometry.undistort import undistort_image
 from ibr_ros.core.registration.sfm import SfmError, SfmOptions
 from ibr_ros.core.registration.sfm_session import SfmSession, SfmUpdate
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.process.frames import Keyframe, _Subsampled
+from ibr_ros.jobs.process.frames import Keyframe, Subsampled
 from ibr_ros.jobs.process.options import Progress
-from ibr_ros.jobs.process.params import _Configs
+from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.register_bag import fixes_to_enu
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
@@ -45,9 +45,9 @@ def _sparse_depth(u: SfmUpdate, stamps: list[int]) -> float | None:
     return float(np.median(per_view)) if per_view else None
 
 
-def _register(
-    sub: _Subsampled, cfg: _Configs, threads: int | None, progress: Progress | None
-) -> tuple[list[Keyframe], _Configs, dict[str, object]]:
+def register_keyframes(
+    sub: Subsampled, cfg: ProcessConfigs, threads: int | None, progress: Progress | None
+) -> tuple[list[Keyframe], ProcessConfigs, dict[str, object]]:
     """SfM mode: register all keyframes with ONE :meth:`SfmSession.update`; the registered keyframes
     (undistorted, with SfM's camera and pose), the configurations to refine them with, and the stats.
     """
@@ -85,14 +85,15 @@ def _register(
     kept: list[Keyframe] = []
     for k in keyframes:
         t_wc = u.poses.get(k.stamp)
-        if k.stamp not in dropped and t_wc is None:
-            dropped[k.stamp] = 'not registered by SfM (too few matches with the registered keyframes)'
-        if k.stamp in dropped:
-            LOG.warning('keyframe %d ns dropped: %s', k.stamp, dropped[k.stamp])
+        if t_wc is None or k.stamp in dropped:
+            why = dropped.setdefault(
+                k.stamp, 'not registered by SfM (too few matches with the registered keyframes)'
+            )
+            LOG.warning('keyframe %d ns dropped: %s', k.stamp, why)
             continue
-        k.rgb, k.camera = undistort_image(k.rgb, u.camera)  # type: ignore[assignment]
-        k.rgb = np.ascontiguousarray(k.rgb)
-        k.t_wc, k.pose_frame = t_wc, frame_id  # type: ignore[assignment]
+        rgb, k.camera = undistort_image(k.rgb, u.camera)
+        k.rgb = np.ascontiguousarray(rgb)
+        k.t_wc, k.pose_frame = t_wc, frame_id
         kept.append(k)
     if not u.metric:
         schedule = cfg.schedule

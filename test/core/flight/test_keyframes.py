@@ -15,6 +15,7 @@ from ibr_ros.core.flight.keyframes import (
     blur_score,
     select_keyframes,
     select_keyframes_for_target,
+    target_baseline,
 )
 from ibr_ros.core.geometry.transforms import look_at, matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.synth import SceneConfig, build_scene, flight_camera, make_trajectory, render_view
@@ -102,3 +103,13 @@ def test_interval_selector_keeps_the_sharpest_frame_per_window():
     assert sel.count == 3
     with pytest.raises(ValueError, match='interval_s must be > 0'):
         IntervalSelector(0.0)
+
+
+def test_target_baseline():
+    assert target_baseline(0, 0.0) is None  # off
+    assert target_baseline(0, 500.0) is None
+    assert target_baseline(25, 500.0) == 20.0
+    with pytest.raises(ValueError, match='needs expected_path_m > 0'):
+        target_baseline(25, 0.0)
+    with pytest.raises(ValueError, match='>= 0'):
+        target_baseline(-1, 100.0)
