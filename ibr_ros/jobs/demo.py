@@ -18,6 +18,7 @@ import logging
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -95,8 +96,8 @@ def run_demo(
     try:
         node = rclpy.create_node('ibr_demo')
 
-        def stamp_of(m: object) -> int:
-            return msg_utils.stamp_to_ns(m.header.stamp)  # type: ignore[attr-defined]
+        def stamp_of(m: Any) -> int:  # any stamped message
+            return msg_utils.stamp_to_ns(m.header.stamp)
 
         def on_image(m: Image) -> None:
             keyframes.setdefault(stamp_of(m), [None, None])[0] = np.array(msg_utils.image_to_rgb(m))
@@ -143,9 +144,9 @@ def run_demo(
             if count != last_count:
                 last_count = count
                 print(f'ibr demo: {len(keyframes)} keyframes, {count} refined', flush=True)
-            s = flight[-1] if flight else None
-            seen_all = s is not None and s.camera == 'ended' and s.frames >= n_frames
-            if seen_all and s.keyframes == len(keyframes) and count >= s.keyframes:
+            latest = flight[-1] if flight else None
+            seen_all = latest is not None and latest.camera == 'ended' and latest.frames >= n_frames
+            if latest is not None and seen_all and latest.keyframes == len(keyframes) <= count:
                 break
         else:
             raise UserError(f'timed out after {timeout_s:.0f} s with {len(depths)}/{len(keyframes)} depths')
@@ -153,7 +154,7 @@ def run_demo(
 
         stamps = sorted(s for s, (img, pose) in keyframes.items() if img is not None and pose is not None)
         path = interpolate_path([keyframes[s][1] for s in stamps], n_queries)
-        results = []
+        results: list[dict[str, object]] = []
         while query_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
         for k, t_wc in enumerate(path):
@@ -168,26 +169,26 @@ def run_demo(
             rgb, received = replies[stamp]
             cam = msg_utils.camera_info_to_pinhole(infos[stamp])
             truth = gt.render(t_wc, cam)
-            s = score(truth.rgb, rgb, valid_mask=rgb.any(axis=2), patch=7, shift=2)
+            sc = score(truth.rgb, rgb, valid_mask=rgb.any(axis=2), patch=7, shift=2)
             _png(out / 'novel_views' / f'query_{k:02d}.png', np.hstack([truth.rgb, rgb]))
             results.append({'query': k, 'answered': True, 'latency_ms': 1e3 * (received - sent),
-                            'auc': s.auc, 'tail': s.tail, 'completeness': s.completeness})  # fmt: skip
+                            'auc': sc.auc, 'tail': sc.tail, 'completeness': sc.completeness})  # fmt: skip
     finally:
         graph.stop()
         rclpy.try_shutdown()
         lock.close()
 
     depth_rows = []
-    for i, s in enumerate(stamps):
-        if s not in depths:
+    for i, stamp in enumerate(stamps):
+        if stamp not in depths:
             continue
-        img, t_wc = keyframes[s]
+        img, t_wc = keyframes[stamp]
         cam_h, cam_w = img.shape[:2]
         from ibr_ros.core.synth import flight_camera
 
-        cam = flight_camera((cam_w, cam_h), float(gt.flight.get('hfov_deg', 70.0)))
+        cam = flight_camera((cam_w, cam_h), gt.hfov_deg)
         truth = gt.render(t_wc, cam)
-        d = depths[s][0]
+        d = depths[stamp][0]
         ok = np.isfinite(truth.depth) & ~truth.sky & np.isfinite(d) & (d > 0)
         rel = np.abs(d[ok] - truth.depth[ok]) / truth.depth[ok]
         depth_rows.append(

@@ -209,7 +209,8 @@ def _depth_sources(
             continue
         pruned = r.mvs_pruned
         out['mvs'].append(pruned)
-        out['mvs_fmm'].append(cv2.inpaint(pruned, (pruned == 0).astype(np.uint8), 5, cv2.INPAINT_TELEA))
+        holes = (pruned == 0).astype(np.uint8)
+        out['mvs_fmm'].append(np.asarray(cv2.inpaint(pruned, holes, 5, cv2.INPAINT_TELEA), np.float32))
         out['mono'].append(apply_sky_depth(r.mono_remapped, r.sky, pruned)[0])
         out['fused'].append(r.depth)
         note['mvs_completeness'] = r.mvs_completeness
@@ -240,7 +241,7 @@ def _fill(rgb: NDArray[np.uint8], valid: NDArray[np.bool_]) -> NDArray[np.uint8]
     """Image inpainting (Telea, radius 3) of the pixels that were not rendered."""
     if valid.all() or not valid.any():
         return rgb
-    return cv2.inpaint(rgb, (~valid).astype(np.uint8), 3, cv2.INPAINT_TELEA)
+    return np.asarray(cv2.inpaint(rgb, (~valid).astype(np.uint8), 3, cv2.INPAINT_TELEA), np.uint8)
 
 
 def _score_render(
@@ -381,7 +382,7 @@ def _summarise(
     methods: list[Method],
 ) -> dict:
     table: dict[str, dict] = {}
-    scalars = ('auc_main', 'tail', 'median', 'completeness', 'auc_unfilled', 'tail_unfilled')
+    scalars: tuple[str, ...] = ('auc_main', 'tail', 'median', 'completeness', 'auc_unfilled', 'tail_unfilled')
     scalars += ('auc_vs_gt_frame', 'tail_vs_gt_frame')
     for m in methods:
         rows = [h['methods'][m.key] for h in per_holdout]
@@ -439,14 +440,14 @@ def _error_map(e: NDArray[np.float32]) -> NDArray[np.uint8]:
     """BGR inferno map of shiftable-L1 errors, 0..ERROR_MAP_MAX colour units; NaN (border) black."""
     ok = np.isfinite(e)
     v = np.clip(np.where(ok, e, 0) * (255.0 / ERROR_MAP_MAX), 0, 255).astype(np.uint8)
-    img = cv2.applyColorMap(v, cv2.COLORMAP_INFERNO)
+    img = np.asarray(cv2.applyColorMap(v, cv2.COLORMAP_INFERNO), np.uint8)
     img[~ok] = 0
     return img
 
 
 def _holdout_png(path: Path, photo: NDArray[np.uint8], shown: dict, scores: dict) -> None:
     """photo | ours | ULR | splat (fused depth) | error map of ours, labelled with AUC / tail."""
-    tiles = [_label(cv2.cvtColor(photo, cv2.COLOR_RGB2BGR), 'held-out photo')]
+    tiles = [_label(np.asarray(cv2.cvtColor(photo, cv2.COLOR_RGB2BGR), np.uint8), 'held-out photo')]
     for key, name in (('ours@fused', 'ours'), ('ulr@fused', 'ULR'), ('splat@fused', 'splat')):
         if key in shown:
             s = scores[key]

@@ -203,6 +203,12 @@ class GroundTruthRenderer:
         self.config, self.flight = load_sidecar(bag)
         self.scene = build_scene(self.config)
 
+    @property
+    def hfov_deg(self) -> float:
+        """The flight camera's horizontal field of view (deg) as recorded; 70 when not recorded."""
+        value = self.flight.get('hfov_deg', 70.0)
+        return float(value) if isinstance(value, (int, float)) else 70.0
+
     def render(self, t_wc: np.ndarray, camera: PinholeCamera) -> SynthFrame:
         """Image, z-depth (+inf sky), sky mask and labels seen from ``t_wc`` with ``camera``."""
         return render_view(self.scene, camera, t_wc)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from ibr_ros.core.render import RenderConfig
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Value
+from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
 
 __all__ = ['INTRINSICS', 'VIEW_RENDERER', 'ViewRendererConfig', 'render_config']
 
@@ -120,17 +120,17 @@ def render_config(values: Mapping[str, object]) -> RenderConfig:
         raise UserError(f'bad view_renderer parameter: {exc}') from exc
 
 
-def _build(v: Mapping[str, Value]) -> ViewRendererConfig:
+def _build(v: Values) -> ViewRendererConfig:
     return ViewRendererConfig(
         render=render_config(v),
-        width=int(v['width']),  # type: ignore[arg-type]
-        height=int(v['height']),  # type: ignore[arg-type]
-        hfov_deg=float(v['hfov_deg']),  # type: ignore[arg-type]
-        min_valid_fraction=float(v['min_valid_fraction']),  # type: ignore[arg-type]
-        frame_id=str(v['frame_id']),
-        max_keyframes=int(v['max_keyframes']),  # type: ignore[arg-type]
-        max_pending_bytes=round(float(v['max_pending_mb']) * 2**20),  # type: ignore[arg-type]
-        warmup=bool(v['warmup']),
+        width=v.integer('width'),
+        height=v.integer('height'),
+        hfov_deg=v.number('hfov_deg'),
+        min_valid_fraction=v.number('min_valid_fraction'),
+        frame_id=v.text('frame_id'),
+        max_keyframes=v.integer('max_keyframes'),
+        max_pending_bytes=round(v.number('max_pending_mb') * 2**20),
+        warmup=v.flag('warmup'),
     )
 
 

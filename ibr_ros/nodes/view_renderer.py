@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -117,14 +118,14 @@ class ViewRenderer(Node):
         self.get_logger().info(f'warm-up render in {seconds:.2f} s')
 
     # -- model ----------------------------------------------------------------------------------
-    def _put(self, stamp: int, field: str, value: object) -> None:
-        if field == 'depth' and not known_depth(value):  # type: ignore[arg-type]
+    def _put(self, stamp: int, field: str, value: Any) -> None:
+        if field == 'depth' and not known_depth(value):
             self.bad('depth_unknown', f'keyframe {stamp} ns: a depth with no known value, rejected')
             return
         if stamp in self.indices:  # image, camera_info and pose are fixed once a keyframe is in the model
             if field == 'depth':
                 v = self.renderer.views[self.indices[stamp]]
-                if np.array_equal(v.depth, value, equal_nan=True):
+                if v.depth is not None and np.array_equal(v.depth, value, equal_nan=True):
                     return  # a mirror's copy of the depth the model has
                 self._update(
                     stamp, {'image': v.rgb, 'camera_info': v.camera, 'pose': (v.t_wc, ''), 'depth': value}
@@ -140,7 +141,7 @@ class ViewRenderer(Node):
         if (record := self.frames.put(stamp, field, value)) is not None:
             self._update(stamp, record)
 
-    def _update(self, stamp: int, kf: dict[str, object]) -> None:
+    def _update(self, stamp: int, kf: dict[str, Any]) -> None:
         """Add complete keyframe ``kf`` to the model or replace its depth (a bad one waits for another)."""
         rgb, cam, (pose, frame), depth = kf['image'], kf['camera_info'], kf['pose'], kf['depth']
         replaced = stamp in self.indices
@@ -221,6 +222,8 @@ class ViewRenderer(Node):
 
     def _answer(self, stamp: int, t_wc: np.ndarray, t0: float) -> None:
         """Render and publish the reply to the query ``stamp`` that arrived at ``t0`` (perf_counter)."""
+        if self.latest_camera is None:  # _check answers no query before the first keyframe
+            return
         try:
             camera = output_camera(self.width, self.height, self.hfov, self.latest_camera)
             out = self.renderer.render(t_wc, camera)

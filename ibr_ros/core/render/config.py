@@ -127,9 +127,9 @@ class RenderConfig:
     def as_paper(self) -> RenderConfig:
         """This configuration with the paper's renderer: :data:`PAPER_FIELDS` (best-angle blend,
         SLIC superpixels as they come, angle-only penalty, no per-pixel or cross-view depth tests)."""
-        return replace(self, **PAPER_FIELDS)  # type: ignore[arg-type]
+        return replace(self, **PAPER_FIELDS)  # type: ignore[arg-type]  # field names with values of their types
 
     @classmethod
     def paper(cls, **changes: object) -> RenderConfig:
         """The paper's renderer with the other defaults (``changes`` override any field)."""
-        return replace(cls().as_paper(), **changes)  # type: ignore[arg-type]
+        return replace(cls().as_paper(), **changes)  # type: ignore[arg-type]  # RenderConfig checks them
