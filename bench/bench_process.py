@@ -44,29 +44,28 @@ STAGES = ('subsample', 'sfm', 'mvs', 'refine', 'render', 'pipeline', 'write', 'e
 
 def live_schedule_seconds(bag: Path, params: Path | None, max_keyframes: int | None) -> list[float]:
     """MVS + refinement seconds per keyframe with the live node's schedule (arrival order, flush at end)."""
-    from ibr_ros.core.depth.mvs import MvsView, compute_depth_maps
-    from ibr_ros.core.depth.refine import DepthRefiner, RefineError
+    from ibr_ros.core.depth.mvs import MvsView
+    from ibr_ros.core.depth.refine import DepthRefiner, refine_job
     from ibr_ros.core.depth.schedule import RefineScheduler
-    from ibr_ros.jobs.process import ProcessOptions, _configs, _subsample, load_params
+    from ibr_ros.jobs.process.frames import subsample
+    from ibr_ros.jobs.process.options import ProcessOptions
+    from ibr_ros.jobs.process.params import load_params, process_configs
 
     options = ProcessOptions(params=params, max_keyframes=max_keyframes)
-    cfg = _configs(load_params(params), options)
-    keyframes = _subsample(bag, cfg, options, None).keyframes
+    cfg = process_configs(load_params(params), options)
+    keyframes = subsample(bag, cfg, options, None).keyframes
     scheduler = RefineScheduler(cfg.schedule)
     refiner = DepthRefiner(cfg.refiner)
     times: list[float] = []
 
     def drain(flush: bool) -> None:
         while (job := scheduler.next_job(flush=flush)) is not None:
-            t0 = time.perf_counter()
-            mvs = compute_depth_maps(job.views, options=cfg.schedule.mvs, depth_range=job.depth_range)[0]
-            try:
-                refiner.refine_from_mvs(job.view, mvs.depth)
-            except RefineError:
+            result = refine_job(refiner, job, cfg.schedule.mvs)
+            if result.refined is None:
                 scheduler.failed(job)
                 continue
             scheduler.done(job)
-            times.append(time.perf_counter() - t0)
+            times.append(result.seconds)
 
     for k in keyframes:
         scheduler.add(k.stamp, MvsView(k.rgb, k.camera, k.t_wc))

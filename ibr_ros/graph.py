@@ -136,10 +136,20 @@ def die_with_parent() -> None:
 
 
 def _ros_value(value: object) -> str:
+    """``value`` as the YAML text of a ``-p name:=value`` argument; a string that YAML would read as
+    something else (``'1'``, ``'true'``, ``''``) is quoted."""
+    import yaml
+
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, (list, tuple)):
         return '[' + ', '.join(_ros_value(v) for v in value) + ']'
+    if isinstance(value, str):
+        try:
+            plain = yaml.safe_load(value) == value
+        except yaml.YAMLError:
+            plain = False
+        return value if plain else "'" + value.replace("'", "''") + "'"
     return str(value)
 
 

@@ -4,22 +4,45 @@ Every test run gets its own ROS_DOMAIN_ID and localhost-only discovery, so that 
 one machine never see each other's nodes: the run holds a UDP port of its domain's range that DDS does
 not use, and a second run (whose pid may well be the same, in a fresh container) takes the next free
 domain. Nodes a test made with ``rclpy.create_node`` are destroyed after it, failed or not.
+
+numba caches compiled kernels per source file and does not notice a change in another file whose
+function a kernel calls or inlines (``core/render`` kernels call ``projection`` and ``warp``): the
+tests (and the node processes they start) use a cache folder named after a hash of every source file
+of ``ibr_ros``, so an edited checkout never runs a stale kernel.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import shutil
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
-import rclpy
-
-from ibr_ros.graph import claim_domain
-
 REPO = Path(__file__).resolve().parents[1]
 
+
+def _numba_cache_dir() -> Path:
+    """``.numba_cache/<hash of the ibr_ros sources>``; caches of other source states are removed."""
+    digest = hashlib.sha256()
+    for path in sorted((REPO / 'ibr_ros').rglob('*.py')):
+        digest.update(path.relative_to(REPO).as_posix().encode() + b'\0' + path.read_bytes())
+    root = REPO / '.numba_cache'
+    here = root / digest.hexdigest()[:16]
+    if root.is_dir():
+        for old in root.iterdir():
+            if old != here:
+                shutil.rmtree(old, ignore_errors=True)
+    return here
+
+
+os.environ.setdefault('NUMBA_CACHE_DIR', str(_numba_cache_dir()))  # before anything imports numba
+
+import pytest  # noqa: E402
+import rclpy  # noqa: E402
+
+from ibr_ros.graph import claim_domain  # noqa: E402
 
 if 'IBR_TEST_DOMAIN_ID' in os.environ:
     DOMAIN_ID = int(os.environ['IBR_TEST_DOMAIN_ID'])

@@ -163,6 +163,9 @@ def test_set_values_are_read_as_yaml_and_checked_against_the_node_table(repo):
     renderer = next(s for s in specs if s.name == 'view_renderer')
     assert renderer.params == {'hfov_deg': 80.0, 'frame_id': 'cam', 'warmup': False}
     assert 'hfov_deg:=80.0' in node_command(renderer)
+    quoted = build_specs(_args(no_player=True, set=["view_renderer.frame_id='1'"]))[-1]
+    assert quoted.params == {'frame_id': '1'}
+    assert "frame_id:='1'" in node_command(quoted)  # read back as the string '1', not the integer 1
     with pytest.raises(UserError, match=r'parameter view_renderer\.width must be an integer'):
         build_specs(_args(no_player=True, set=['view_renderer.width=wide']))
     with pytest.raises(UserError, match="'x' is not a parameter of view_renderer"):

@@ -63,8 +63,7 @@ class OfferedQos:
         """The policies of an rclpy ``QoSProfile`` (its enum values are rmw's, as version 8 stores them)."""
         values = {policy: getattr(profile, policy).value for policy in _POLICIES}
         return cls(
-            # _name returns one of the policy's literal names, and __post_init__ checks them again.
-            **{policy: _name(policy, value) for policy, value in values.items()},  # type: ignore[arg-type]
+            **{policy: _name(policy, value) for policy, value in values.items()},  # type: ignore[arg-type]  # _name gives a literal
             depth=int(profile.depth),
         )
 

@@ -14,7 +14,7 @@ def _overrides(items: list[str]) -> dict[str, dict[str, object]]:
     checked against the node's parameter table (an integer for a double parameter becomes a double)."""
     import yaml
 
-    from ibr_ros.node_config import TABLES
+    from ibr_ros.node_config import NODES, table_of
 
     out: dict[str, dict[str, object]] = {}
     for item in items:
@@ -26,8 +26,8 @@ def _overrides(items: list[str]) -> dict[str, dict[str, object]]:
             value = yaml.safe_load(text) if text else ''
         except yaml.YAMLError:
             value = text
-        if node in TABLES:
-            value = TABLES[node].values({param: value}, where=f'{node}.')[param]
+        if node in NODES:
+            value = table_of(node).values({param: value}, where=f'{node}.')[param]
         out.setdefault(node, {})[param] = value
     return out
 

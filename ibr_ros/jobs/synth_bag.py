@@ -206,8 +206,7 @@ class GroundTruthRenderer:
     @property
     def hfov_deg(self) -> float:
         """The flight camera's horizontal field of view (deg) as recorded; 70 when not recorded."""
-        value = self.flight.get('hfov_deg', 70.0)
-        return float(value) if isinstance(value, (int, float)) else 70.0
+        return float(str(self.flight.get('hfov_deg', 70.0)))
 
     def render(self, t_wc: np.ndarray, camera: PinholeCamera) -> SynthFrame:
         """Image, z-depth (+inf sky), sky mask and labels seen from ``t_wc`` with ``camera``."""

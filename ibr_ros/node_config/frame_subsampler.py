@@ -9,10 +9,10 @@ from ibr_ros.core.flight.status import IMAGE_TRANSPORTS, POSE_MODES
 from ibr_ros.errors import UserError
 from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
 
-__all__ = ['FRAME_SUBSAMPLER', 'POSE_TYPES', 'FrameSubsamplerConfig']
+__all__ = ['FRAME_SUBSAMPLER', 'POSE_TYPE_CHOICES', 'FrameSubsamplerConfig']
 
 #: ``pose_type`` values: the message type of ``camera/pose``.
-POSE_TYPES = ('pose', 'odometry')
+POSE_TYPE_CHOICES = ('pose', 'odometry')
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ FRAME_SUBSAMPLER: ParamTable[FrameSubsamplerConfig] = ParamTable(
             'pose_type',
             'pose',
             "message type of camera/pose: 'pose' = geometry_msgs/PoseStamped, 'odometry' = nav_msgs/Odometry",
-            choices=POSE_TYPES,
+            choices=POSE_TYPE_CHOICES,
         ),
         Param(
             'scene_depth_m',

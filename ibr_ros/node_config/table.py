@@ -6,7 +6,7 @@ configuration from their values. The rclpy node declares its parameters by loopi
 (:func:`ibr_ros.nodes.common.declare_table`), ``ibr process`` builds the same configurations from
 ``config/*.yaml`` with :meth:`ParamTable.config`, and the shipped params files and the README's node
 reference are generated from the tables (:meth:`ParamTable.params_file`, :meth:`ParamTable.reference`;
-``python -m ibr_ros.node_config --check``).
+``python -m ibr_ros.node_config`` checks them, ``--write`` rewrites them).
 """
 
 from __future__ import annotations

@@ -466,7 +466,8 @@ class DepthRefinerNode(Node):
             for stamp in u.new:
                 image, camera, frame_id = self._sfm_views[stamp]
                 t_wc = u.poses[stamp]
-                if t_wc is None or self.pub_pose is None:  # a new keyframe is registered; SfM mode
+                if t_wc is None or self.pub_pose is None:  # cannot happen: new keyframes are registered
+                    self.bad('sfm', f'keyframe {stamp} ns: SfM reported it new without a pose')
                     continue
                 self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
                 self.schedule.add(stamp, MvsView(image, camera, t_wc))

@@ -44,7 +44,7 @@ from ibr_ros.nodes.common import (
 IMAGE_TYPES = {'camera/image_raw': Image, 'camera/image_raw/compressed': CompressedImage}
 
 #: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
-POSE_TYPES = {
+POSE_MESSAGES = {
     'pose': (PoseStamped, msg_utils.pose_stamped_to_matrix),
     'odometry': (Odometry, msg_utils.odometry_to_matrix),
 }
@@ -87,7 +87,7 @@ class FrameSubsampler(Node):
         self.camera = 'waiting'
         self._images = self._images_at_tick = 0  # image messages handled, at the last graph tick
         info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
-        pose_type, to_matrix = POSE_TYPES[cfg.pose_type]
+        pose_type, to_matrix = POSE_MESSAGES[cfg.pose_type]
         pose = lambda m: (to_matrix(m), m.header.frame_id or 'map')  # noqa: E731
         # field -> candidate (message type, topic, conversion), in order of preference.
         self._inputs: dict[str, list[tuple[type, str, Callable[[Any], Any]]]] = {

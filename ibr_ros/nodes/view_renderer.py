@@ -44,7 +44,7 @@ import msg_utils
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
 from ibr_ros.jobs.warmup import warm_up_renderer
-from ibr_ros.node_config import INTRINSICS, VIEW_RENDERER
+from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
     BadInput,

@@ -37,9 +37,9 @@ from test_refiner_renderer_nodes import Proc
 
 import msg_utils
 from ibr_ros.core.depth.mvs import MvsView
-from ibr_ros.core.depth.schedule import RefineScheduler, ScheduleConfig, shard_of
+from ibr_ros.core.depth.schedule import RefineScheduler, ScheduleConfig
 from ibr_ros.core.flight.stamps import StampAssembler
-from ibr_ros.core.flight.status import FlightStatus, PoseSource, ShardMembership
+from ibr_ros.core.flight.status import FlightStatus, PoseSource, ShardMembership, shard_of
 from ibr_ros.nodes.common import latched_qos, model_qos, reliable_qos
 
 pytestmark = [pytest.mark.dds, pytest.mark.e2e]

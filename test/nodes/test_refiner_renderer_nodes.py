@@ -40,8 +40,9 @@ from node_harness import (
 from sensor_msgs.msg import Image
 
 import msg_utils
-from ibr_ros.core.depth.schedule import axis_scene_depth, shard_of
+from ibr_ros.core.depth.schedule import axis_scene_depth
 from ibr_ros.core.evaluation.rephoto import score
+from ibr_ros.core.flight.status import shard_of
 from ibr_ros.core.geometry.transforms import R_BODY_FROM_OPTICAL, matrix_from_rt, rotation_from_ypr
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.graph import die_with_parent

@@ -72,7 +72,6 @@ from ibr_ros.core.depth.schedule import (
     ScheduleConfig,
     axis_scene_depth,
     parse_depth_range,
-    shard_of,
 )
 from ibr_ros.core.depth.sky import (
     SKY_PRESETS,
@@ -136,7 +135,6 @@ __all__ = [
     'prune_depth',
     'refine_job',
     'select_neighbours',
-    'shard_of',
     'sky_fallback',
     'to_input_tensor',
     'tree_filter',

@@ -27,7 +27,6 @@ Warnings are returned once each by :meth:`RefineScheduler.pop_warnings` for the 
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ibr_ros.core.depth.mvs import MvsOptions, MvsView, select_neighbours
+from ibr_ros.core.flight.status import shard_of
 
 __all__ = [
     'RefineJob',
@@ -42,14 +42,7 @@ __all__ = [
     'ScheduleConfig',
     'axis_scene_depth',
     'parse_depth_range',
-    'shard_of',
 ]
-
-
-def shard_of(stamp_ns: int, num_workers: int) -> int:
-    """The worker (0 .. ``num_workers`` - 1) that refines the keyframe stamped ``stamp_ns``."""
-    digest = hashlib.blake2b(int(stamp_ns).to_bytes(8, 'little', signed=True), digest_size=8).digest()
-    return int.from_bytes(digest, 'little') % num_workers
 
 
 def axis_scene_depth(t_wc: np.ndarray, others: Sequence[np.ndarray]) -> float | None:

@@ -25,6 +25,7 @@ from ibr_ros.core.flight.status import (
     FlightStatus,
     PoseSource,
     ShardMembership,
+    shard_of,
 )
 
 __all__ = [
@@ -43,5 +44,6 @@ __all__ = [
     'blur_score',
     'select_keyframes',
     'select_keyframes_for_target',
+    'shard_of',
     'target_baseline',
 ]

@@ -10,10 +10,9 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields
-
-from ibr_ros.core.depth.schedule import shard_of
 
 __all__ = [
     'CAMERA_STATES',
@@ -22,6 +21,7 @@ __all__ = [
     'FlightStatus',
     'PoseSource',
     'ShardMembership',
+    'shard_of',
 ]
 
 #: ``pose_source`` parameter values: ``auto`` (poses iff the pose topic has a publisher when the first
@@ -76,6 +76,12 @@ class PoseSource:
         return True
 
 
+def shard_of(stamp_ns: int, num_workers: int) -> int:
+    """The worker (0 .. ``num_workers`` - 1) that refines the keyframe stamped ``stamp_ns``."""
+    digest = hashlib.blake2b(int(stamp_ns).to_bytes(8, 'little', signed=True), digest_size=8).digest()
+    return int.from_bytes(digest, 'little') % num_workers
+
+
 @dataclass(frozen=True)
 class FlightStatus:
     """The frame_subsampler's latched status (``keyframes/status``); every field is a string value.
@@ -126,7 +132,7 @@ class ShardMembership:
     A worker is alive while its heartbeats arrive within ``lease_s`` of each other (this worker always
     is). A worker never heard from counts as alive for the first ``lease_s`` after this one started,
     so that workers starting together do not take each other's keyframes. A keyframe belongs to its
-    :func:`~ibr_ros.core.depth.schedule.shard_of` worker while that one is alive, else to one of the live
+    :func:`shard_of` worker while that one is alive, else to one of the live
     workers, chosen by the same hash over their sorted indices (every worker with the same view of
     who is alive picks the same one). :meth:`synced`: every worker presumed alive has been heard from
     at least once (its heartbeat lists the keyframes whose depth it published), so this worker knows

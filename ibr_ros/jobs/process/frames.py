@@ -219,7 +219,7 @@ def _select_topics(
         why: str | None = '--sfm'
     elif cfg.subsampler.pose_source == 'none':
         why = "frame_subsampler pose_source 'none'"
-    elif sel.pose is None and cfg.sfm_mode == 'off':
+    elif sel.pose is None and cfg.sfm.mode == 'off':
         raise UserError(
             f'{no_pose} and depth_refiner sfm_mode is off: frames without poses are not refined '
             f'(sfm_mode auto or --sfm registers them with SfM); {where}'
@@ -232,7 +232,7 @@ def _select_topics(
     elif sel.pose is None:
         why = 'no pose topic'
     else:
-        why = "depth_refiner sfm_mode 'always'" if cfg.sfm_mode == 'always' else None
+        why = "depth_refiner sfm_mode 'always'" if cfg.sfm.mode == 'always' else None
     out: dict[str, str | None] = {
         'image': sel.image,
         'camera_info': sel.camera_info,

@@ -57,7 +57,7 @@ def write_bag(
         query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)
         events.append((v.stamp, 5, 'query', query))
         if v.rgb is not None and v.camera is not None:
-            header = msg_utils.make_header(v.stamp, cfg.view_frame, **rb)
+            header = msg_utils.make_header(v.stamp, cfg.viewing.frame_id, **rb)
             events.append((v.stamp, 6, 'view', msg_utils.numpy_to_image(v.rgb, 'rgb8', header, **rb)))
             events.append((v.stamp, 7, 'view_info', msg_utils.pinhole_to_camera_info(v.camera, header, **rb)))
     events.sort(key=lambda e: (e[0], e[1]))

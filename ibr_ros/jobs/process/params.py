@@ -4,37 +4,28 @@ configurations mapped from them."""
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TypeVar
 
 import yaml
 
 from ibr_ros.core.depth.refine import RefinerConfig
 from ibr_ros.core.depth.schedule import ScheduleConfig
-from ibr_ros.core.registration.sfm_session import ScaleHint
-from ibr_ros.core.render import RenderConfig
+from ibr_ros.core.registration.trigger import SfmConfig
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.options import ProcessOptions
-from ibr_ros.node_config import DEPTH_REFINER, FRAME_SUBSAMPLER, VIEW_RENDERER, FrameSubsamplerConfig
+from ibr_ros.node_config import table_of
+from ibr_ros.node_config.depth_refiner import DEPTH_REFINER
+from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
+from ibr_ros.node_config.view_renderer import VIEW_RENDERER, ViewRendererConfig
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
-T = TypeVar('T')
 
 
 #: The nodes whose parameters ``ibr process`` reads.
 NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
 #: depth_refiner parameters ``ibr process`` sets itself: one worker, the whole flight known.
 REFINER_OFFLINE = {'num_workers': 1, 'worker_index': 0, 'refine_again': False}
-
-
-def _named(node: str, fn: Callable[..., T], *args: object) -> T:
-    """``fn(*args)``, its UserError prefixed with ``node`` (whose parameter it names)."""
-    try:
-        return fn(*args)
-    except UserError as exc:
-        raise UserError(f'{node} {exc}') from exc
 
 
 def _section_targets(key: str) -> str | None:
@@ -64,32 +55,6 @@ def _read_params_file(path: Path) -> list[tuple[str, dict[str, object]]]:
         if (target := _section_targets(key)) is not None:
             out.append((target, params))
     return out
-
-
-def _coerce(path: Path, node: str, name: str, value: object, default: object) -> object:
-    """``value`` as the type of the parameter's default (an integer is accepted for a float)."""
-    kinds = {bool: 'true or false', float: 'a number', int: 'an integer', list: 'a list'}
-    kind = kinds.get(type(default), 'a string')
-    bad = UserError(f'{path}: {node}.{name} must be {kind} (default {default!r}), got {value!r}')
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise bad
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise bad
-        return float(value)
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise bad
-        return value
-    if isinstance(default, list):
-        if not isinstance(value, list):
-            raise bad
-        return value
-    if not isinstance(value, type(default)):
-        raise bad
-    return value
 
 
 def load_params(params_file: Path | None = None, config: Path | None = None) -> dict[str, dict[str, object]]:
@@ -125,66 +90,49 @@ def load_params(params_file: Path | None = None, config: Path | None = None) -> 
                 where = nodes[0] if len(nodes) == 1 else 'any of ' + ', '.join(nodes)
                 raise UserError(f'{params_file}: {name!r} is not a parameter of {where}')
             for n in known:
-                params[n][name] = _coerce(Path(params_file), n, name, value, params[n][name])
+                try:
+                    params[n][name] = table_of(n)[name].check(value, f'{n}.')
+                except UserError as exc:
+                    raise UserError(f'{params_file}: {exc}') from None
     return params
 
 
 @dataclass(frozen=True)
 class ProcessConfigs:
-    """The core configurations of one ``ibr process`` run, built from the node parameters."""
+    """The core configurations of one ``ibr process`` run, built with the nodes' parameter tables.
 
-    # target_keyframes: ProcessOptions' when given; 0 = the streaming selector
+    ``subsampler.target_keyframes``: ``ProcessOptions``' when given (0 = the streaming selector);
+    ``viewing``: the view_renderer's, with ``ProcessOptions``' width, height and hfov_deg when given;
+    ``flush``: offline the flight has ended, as live once ``keyframes/status`` says so.
+    """
+
     subsampler: FrameSubsamplerConfig
     schedule: ScheduleConfig
-    flush: bool
     refiner: RefinerConfig
-    render: RenderConfig
-    out_size: tuple[int, int, float]  # width, height, hfov_deg; 0 = the last keyframe's
-    min_valid: float
-    view_frame: str
-    sfm_mode: str
-    sfm_min_keyframes: int
-    sfm_max_side: int
-    sfm_scale: ScaleHint | None
+    sfm: SfmConfig
+    viewing: ViewRendererConfig
+    flush: bool = True
 
 
 def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> ProcessConfigs:
-    """The core configurations, mapped from the node parameters exactly as the nodes map them."""
+    """The core configurations, built from the node parameters by the nodes' own tables."""
     fs, dr, vr = (params[n] for n in NODES)
-    try:
-        subsampler = FRAME_SUBSAMPLER.config(fs, where='frame_subsampler.')
-        refining = _named('depth_refiner', DEPTH_REFINER.config, {**dr, **REFINER_OFFLINE})
-        poseless_interval_s = subsampler.poseless_interval_s
-        sfm_min_keyframes, sfm_max_side = refining.sfm.min_keyframes, refining.sfm.max_side
-        if poseless_interval_s <= 0 or sfm_min_keyframes < 3 or sfm_max_side < 0:
-            raise UserError(
-                'need frame_subsampler poseless_interval_s > 0, depth_refiner sfm_min_keyframes >= 3 and '
-                f'sfm_max_side >= 0, got {poseless_interval_s}, {sfm_min_keyframes}, {sfm_max_side}'
-            )
-        viewing = VIEW_RENDERER.config(vr, where='view_renderer.')
-    except (ValueError, TypeError, KeyError) as exc:
-        raise UserError(f'bad node parameters: {exc}') from exc
-    size = (
-        viewing.width if o.width is None else o.width,
-        viewing.height if o.height is None else o.height,
-        viewing.hfov_deg if o.hfov_deg is None else o.hfov_deg,
+    if o.target_keyframes is not None and o.target_keyframes < 0:
+        raise UserError(
+            f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {o.target_keyframes}'
+        )
+    size = {'width': o.width, 'height': o.height, 'hfov_deg': o.hfov_deg}
+    subsampler = FRAME_SUBSAMPLER.config(fs, where='frame_subsampler.')
+    refining = DEPTH_REFINER.config({**dr, **REFINER_OFFLINE}, where='depth_refiner.')
+    viewing = VIEW_RENDERER.config(
+        {**vr, **{k: v for k, v in size.items() if v is not None}}, where='view_renderer.'
     )
-    if size[0] < 0 or size[1] < 0 or not 0 <= size[2] < 180:
-        raise UserError(f'novel view size {size[0]}x{size[1]}, hfov {size[2]} deg: need >= 0 and hfov < 180')
-    target = subsampler.target_keyframes if o.target_keyframes is None else o.target_keyframes
-    if target < 0:
-        raise UserError(f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {target}')
+    if o.target_keyframes is not None:
+        subsampler = replace(subsampler, target_keyframes=o.target_keyframes)
     return ProcessConfigs(
-        subsampler=replace(subsampler, target_keyframes=target),
+        subsampler=subsampler,
         schedule=refining.schedule,
-        flush=True,  # offline the flight has ended: as live once keyframes/status says so
         refiner=refining.refiner,
-        render=viewing.render,
-        out_size=size,
-        min_valid=viewing.min_valid_fraction,
-        view_frame=viewing.frame_id,
-        sfm_mode=refining.sfm.mode,
-        sfm_min_keyframes=sfm_min_keyframes,
-        sfm_max_side=sfm_max_side,
-        sfm_scale=refining.sfm.scale,
+        sfm=refining.sfm,
+        viewing=viewing,
     )

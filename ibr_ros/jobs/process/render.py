@@ -38,7 +38,7 @@ def render_all(
     if not model:
         return [], info
     model_frame = model[0].pose_frame
-    renderer = NovelViewRenderer([], cfg.render)
+    renderer = NovelViewRenderer([], cfg.viewing.render)
     t0 = time.perf_counter()
     for k in model:
         if k.pose_frame != model_frame:
@@ -51,7 +51,7 @@ def render_all(
         if (why := renderer.skip_reason(i)) is not None:
             unusable[str(k.stamp)] = why
     info['prepare_s'] = time.perf_counter() - t0
-    camera = output_camera(*cfg.out_size, model[-1].camera)
+    camera = output_camera(cfg.viewing.width, cfg.viewing.height, cfg.viewing.hfov_deg, model[-1].camera)
     poses = interpolate_path([k.t_wc for k in model], n_views)
     stamps = path_stamps([k.stamp for k in model], n_views)
     views = [NovelView(s, t) for s, t in zip(stamps, poses, strict=True)]
@@ -61,8 +61,10 @@ def render_all(
         v.render_s = time.perf_counter() - t1
         if out.reason is not None:
             v.reason = f'unrenderable: {out.reason}'
-        elif (frac := float(out.valid.mean())) < cfg.min_valid:
-            v.reason = f'incomplete: {frac:.0%} rendered (< min_valid_fraction {cfg.min_valid})'
+        elif (frac := float(out.valid.mean())) < cfg.viewing.min_valid_fraction:
+            v.reason = (
+                f'incomplete: {frac:.0%} rendered (< min_valid_fraction {cfg.viewing.min_valid_fraction})'
+            )
         else:
             v.camera, v.rgb, v.valid = camera, out.rgb, out.valid
         if progress is not None:

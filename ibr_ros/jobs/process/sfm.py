@@ -52,10 +52,10 @@ def register_keyframes(
     (undistorted, with SfM's camera and pose), the configurations to refine them with, and the stats.
     """
     keyframes, n = sub.keyframes, len(sub.keyframes)
-    if n < cfg.sfm_min_keyframes:
+    if n < cfg.sfm.min_keyframes:
         raise UserError(
             f'SfM mode ({sub.sfm_why}): {n} keyframes, the depth_refiner registers at least '
-            f'sfm_min_keyframes = {cfg.sfm_min_keyframes} (a longer bag, a smaller poseless_interval_s or a '
+            f'sfm_min_keyframes = {cfg.sfm.min_keyframes} (a longer bag, a smaller poseless_interval_s or a '
             'larger --max-keyframes)'
         )
     t0 = time.perf_counter()
@@ -63,8 +63,8 @@ def register_keyframes(
     gps, origin = fixes_to_enu(sub.fixes, np.array([k.stamp for k in keyframes], np.int64), GPS_MAX_GAP_S)
     session = SfmSession(
         options=SfmOptions(num_threads=threads) if threads is not None else None,
-        scale_hint=cfg.sfm_scale,
-        max_side=cfg.sfm_max_side,
+        scale_hint=cfg.sfm.scale,
+        max_side=cfg.sfm.max_side,
         redefine=False,
     )
     dropped: dict[int, str] = {}
@@ -126,9 +126,9 @@ def register_keyframes(
         'metric': u.metric,
         'unit': unit,
         'scale_hint': None
-        if cfg.sfm_scale is None
-        else {'kind': cfg.sfm_scale.kind, 'metres': cfg.sfm_scale.metres},
-        'max_side': cfg.sfm_max_side,
+        if cfg.sfm.scale is None
+        else {'kind': cfg.sfm.scale.kind, 'metres': cfg.sfm.scale.metres},
+        'max_side': cfg.sfm.max_side,
         'mean_reprojection_error_px': res.mean_reprojection_error_px if res is not None else None,
         'points': len(u.points),
         'scene_depth_from_sparse_points': sparse_depth,
