@@ -15,7 +15,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy._rclpy_pybind11 import RCLError
@@ -47,7 +46,6 @@ __all__ = [
     'declare',
     'declare_table',
     'input_qos',
-    'known_depth',
     'latched_qos',
     'model_qos',
     'reliable_qos',
@@ -276,12 +274,6 @@ def run_node(
         if stopped:
             print(f'{name}: shut down by a signal or shutdown request, stopped', file=sys.stderr)
     return code
-
-
-def known_depth(depth: np.ndarray) -> bool:
-    """Whether a depth map (metres; 0, NaN and inf as :func:`msg_utils.depth_image_to_m` leaves
-    them) has at least one finite known value; one without is rejected, never swapped in."""
-    return bool((np.isfinite(depth) & (depth > 0)).any())
 
 
 def size_mismatch(width: int, height: int, image_shape: tuple[int, ...], stamp: int) -> str | None:

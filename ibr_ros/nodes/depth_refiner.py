@@ -32,7 +32,7 @@ import msg_utils
 from ibr_ros.core.depth.colour import colour_depth
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
-from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig, refine_job
+from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig, known_depth, refine_job
 from ibr_ros.core.depth.schedule import RefineJob, RefineScheduler
 from ibr_ros.core.flight.status import FlightStatus, ShardMembership
 from ibr_ros.core.geometry.camera import PinholeCamera
@@ -48,7 +48,6 @@ from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
     declare_table,
-    known_depth,
     latched_qos,
     model_qos,
     reliable_qos,

@@ -41,6 +41,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
+from ibr_ros.core.depth.refine import known_depth
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
 from ibr_ros.jobs.warmup import warm_up_renderer
@@ -50,7 +51,6 @@ from ibr_ros.nodes.common import (
     BadInput,
     StampAssembler,
     declare_table,
-    known_depth,
     model_qos,
     reliable_qos,
     run_node,

@@ -252,9 +252,7 @@ class DepthRefiner:
 
 def known_depth(depth: NDArray[np.floating]) -> bool:
     """Whether a depth map (metres; 0, NaN and negative unknown, +inf sky) has at least one finite
-    known value; one without is rejected, never published or swapped in (the nodes' check on
-    received depth is :func:`ibr_ros.nodes.common.known_depth`, kept there so that nodes without
-    depth work do not import this package)."""
+    known value; one without is rejected, never published or swapped in (refined or received)."""
     return bool((np.isfinite(depth) & (depth > 0)).any())
 
 
