@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """ament_python package ibr_ros.
 
 Besides the usual console scripts, ``ros2 run ibr_ros <exe>`` needs an executable in

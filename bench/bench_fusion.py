@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Depth refinement core benchmarks: fusion (960x540), pruning and LUT remapping (1228x816).
 
 Warm timings (every kernel compiled first), median of N_RUNS runs, one thread, on a synthetic

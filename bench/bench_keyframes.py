@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Keyframe decision rate at 960x540: blur score + KeyframeSelector.decide per frame.
 
 Warm, median over N_FRAMES frames of a synthetic flight (rendered once). Baseline in the same

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Benchmark: the shipped monocular depth + sky model on one 384x224 image, target <= 150 ms.
 
 Times (median of ``RUNS``, warm, onnxruntime with 1 intra-op thread) the depth pass

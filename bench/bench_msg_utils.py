@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Benchmark: 1920x1080 rgb8 numpy <-> sensor_msgs/Image with msg_utils, both flavours.
 
 Prints the median of RUNS runs for each direction next to a naive baseline measured in the same

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-view MVS benchmark: :func:`ibr_ros.core.depth.mvs.mvs_depth` on a 960x540 view with 4 neighbours.
 
 Synthetic oblique orbit over the procedural town (``ibr_ros.core.synth``, seed 1, one frame every

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Throughput of ``ibr process`` on the shipped synthetic bag: seconds per keyframe per stage.
 
 Runs :func:`ibr_ros.jobs.process.process_bag` on ``bags/synth_orbit_s0`` with the parameters of
@@ -22,7 +24,6 @@ import re
 import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmark this checkout

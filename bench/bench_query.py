@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Benchmark: novel-view query round trip over DDS at 960x540, target p95 <= 100 ms.
 
 The view_renderer runs as its own process (:func:`ibr_ros.graph.node_command`, default parameters:

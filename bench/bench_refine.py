@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Whole per-view refinement excluding network inference and MVS, at 1228x816 (the paper's size).
 
 ``DepthRefiner.refine_from_mvs`` on a synthetic town view (ground truth from ``ibr_ros.core.synth``)

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Benchmark: one 960x540 novel view from 4 source views (~1500 SLIC superpixels each), target <= 50 ms.
 
 Scene: the synthetic town (``SceneConfig(seed=3)``), an orbit flight at 15 fps; frames 24, 27, 33

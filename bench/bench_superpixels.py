@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Benchmark: SLIC superpixels at 960x540 (target <= 20 ms) and the shiftable-L1 rephoto error.
 
 Warm (numba compiled first), median of >= 20 runs, with 2 threads and with 1 thread (numba and

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Benchmark of the synthetic drone renderer: one 20 s, 15 fps, 640x360 flight (300 frames).
 
 Prints the total wall time of the flight, median ms per frame, process CPU time, and two

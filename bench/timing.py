@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Timing helper shared by the benchmarks (imported as ``timing``: bench/ is the scripts' own folder)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Executables of the package: one table read by setup.py and by the ``lib/ibr_ros`` launchers.
 
 Kept free of imports so that setup.py can read it without the package's dependencies.

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Exceptions shared by the command line tools and the nodes."""
 
 from __future__ import annotations

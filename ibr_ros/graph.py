@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Start the ibr_ros node graph as separate processes, where ``ros2 launch`` is not available.
 
 Each node runs as ``python -P -m ibr_ros.launch_entry <name> --ros-args --params-file

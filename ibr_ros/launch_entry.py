@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Run one executable of ``entry_points.CONSOLE_SCRIPTS`` by name: the ``lib/ibr_ros`` launchers run
 ``python -m ibr_ros.launch_entry NAME ARGS...``, the console scripts call :func:`main` directly (the
 name is then the script's own).

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Launch the ibr_ros node graph on a real ROS 2 install (``ros2 launch ibr_ros ibr_graph.launch.py``).
 
 Arguments: ``bag`` (path; empty = no bag_player, feed live topics), ``rate`` (replay rate, 0 = as

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """ROS messages <-> numpy, for rclpy message classes and rosbags dataclasses alike.
 
 Functions that build messages take ``flavor='rclpy' | 'rosbags'``; functions that read them

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``sensor_msgs/CameraInfo`` <-> :class:`ibr_ros.core.geometry.camera.PinholeCamera`."""
 
 from __future__ import annotations

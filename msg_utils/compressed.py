@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``sensor_msgs/CompressedImage`` <-> numpy, following image_transport_plugins conventions.
 
 ``compressed`` transport: ``format`` is ``'<encoding>; <jpeg|png> compressed <bgr8|mono8>'``

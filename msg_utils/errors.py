@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The one exception type of :mod:`msg_utils`, and what converting a message may raise."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``sensor_msgs/Image`` <-> numpy, and depth conventions (REP-118).
 
 Arrays are HxW for 1-channel encodings and HxWxC otherwise, in the message's channel order

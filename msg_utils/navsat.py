@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``sensor_msgs/NavSatFix`` <-> :class:`GeoFix`."""
 
 from __future__ import annotations

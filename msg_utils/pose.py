@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Poses in geometry_msgs / nav_msgs messages <-> 4x4 float64 matrices.
 
 A matrix ``T`` maps child-frame coordinates to parent-frame coordinates (``p_parent = T @ p_child``):

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``diagnostic_msgs/DiagnosticStatus`` <-> a name, a level, a message and string key-values."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Shared test set-up: DDS isolation and paths.
 
 Every test run gets its own ROS_DOMAIN_ID and localhost-only discovery, so that parallel runs on

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """A two-role DDS peer for the smoke test (run as a separate process).
 
 ``sub``: waits for one Image on ``smoke/image`` and prints ``RECEIVED <sha256> <h> <w> <encoding>``.

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """MCAP test helpers shared by the bag and CLI tests."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Shared test helpers: frames of the shipped bag, keyframe messages, nodes spun in this process."""
 
 from __future__ import annotations

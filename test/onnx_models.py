@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Tiny ONNX stand-ins with the input/output signatures of well-known models (built with onnx.helper)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The benchmark and tool scripts import only names that exist (they are not run by the suite)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr graph`` process specs and the launch file (checked against stand-in launch modules).
 
 ros2launch has no wheels here, so the launch file is executed with minimal fake ``launch`` and

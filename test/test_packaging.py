@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The installed package is what `ros2 run` and `ros2 pkg` expect.
 
 ros2cli has no wheels here, so these tests do what ``ros2 run ibr_ros <exe>`` does: find the

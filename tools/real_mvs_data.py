@@ -1,4 +1,6 @@
 #!/usr/bin/env python3
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Real photos with MVS depth for the monocular model: register a bag, compute MVS depth, save an npz.
 
 MegaDepth's idea on a small scale: multi-view reconstructions of real photos supervise single-view

@@ -1,4 +1,6 @@
 #!/usr/bin/env python3
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Train ibr_ros's small monocular depth + sky network on synthetic views and export it to ONNX.
 
 Needs the optional training extra (``pip install -r requirements/train.txt``: torch, CPU build);

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Bag I/O: read ROS 2 / ROS 1 bags and bare MCAP files, write ROS 2 MCAP bags, detect topics, and the
 playback policy of the bag_player (what to replay, with which QoS)."""
 

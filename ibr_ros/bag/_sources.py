@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Storage back ends of :mod:`ibr_ros.bag.reader`: rosbags ``AnyReader`` and the ``mcap`` library.
 
 A source yields ``(topic, msgtype, timestamp_ns, data)`` in timestamp order, ``data`` as stored

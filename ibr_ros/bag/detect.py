@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Pick the camera, camera info, pose, GNSS, depth and sky mask topics of a bag by message type.
 
 Explicit topic names override detection. Where several topics fit, the choice is deterministic

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Summaries of bags, like ``ros2 bag info`` plus per-topic rates and image sizes."""
 
 from __future__ import annotations

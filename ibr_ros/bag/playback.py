@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """What the bag_player plays and how, as pure policy (no rclpy): which bag topics can be replayed, the
 QoS each is offered with, topic remaps, the played time window and whether a payload decodes.
 

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Offered QoS profiles of recorded topics, stored as rosbag2 stores them (``offered_qos_profiles``).
 
 rosbag2 keeps, per topic, the QoS profiles that the recorded publishers offered, in ``metadata.yaml``

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Read ROS 2 bags (mcap or sqlite3 storage), bare ``.mcap`` files and ROS 1 ``.bag`` files.
 
 Messages come out as :class:`BagMessage` with CDR ``rawdata`` and a lazily deserialised rosbags

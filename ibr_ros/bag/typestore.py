@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The message type store shared by bag reading and writing (rosbags, ROS 2 Jazzy)."""
 
 from __future__ import annotations

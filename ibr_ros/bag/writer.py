@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Write ROS 2 bag directories: MCAP storage with chunk compression, plus ``metadata.yaml``.
 
 The ``.mcap`` is written with the ``mcap`` library (rosbags' writer compresses chunks with zstd

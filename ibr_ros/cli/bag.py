@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag ...``: bag subcommands, one module each (``ibr_ros.cli.bag_*``)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag from-images DIR --out BAG``: photos (EXIF time order) to a ROS 2 bag."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag info PATH [PATH...] [--json]``: summarise bags."""
 
 from __future__ import annotations

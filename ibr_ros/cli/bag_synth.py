@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag synth``: render a synthetic drone flight with ground truth into a bag."""
 
 from __future__ import annotations

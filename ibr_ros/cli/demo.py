@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr demo``: the main job on the embedded default bag (see :mod:`ibr_ros.jobs.demo`)."""
 
 from __future__ import annotations

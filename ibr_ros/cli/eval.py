@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval ...``: evaluations against ground truth that write Markdown + JSON tables and PNGs."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr graph``: run the node graph as separate processes (for venvs without ``ros2 launch``)."""
 
 from __future__ import annotations

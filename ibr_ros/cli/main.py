@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr``: command line entry point.
 
 Each subcommand module defines ``register(subparsers)`` which adds its parser and sets

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr models list`` / ``ibr models fetch NAME [--to DIR]``: well-known ONNX models, sha256-verified."""
 
 from __future__ import annotations

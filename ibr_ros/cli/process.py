@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr process``: a whole bag through the node pipeline offline (see :mod:`ibr_ros.jobs.process`)."""
 
 from __future__ import annotations

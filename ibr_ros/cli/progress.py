@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Progress bars for long jobs (tqdm on stderr; silent when stderr is not a terminal unless forced)."""
 
 from __future__ import annotations

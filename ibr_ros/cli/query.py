@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr query``: ask a running ``view_renderer`` for one novel view and save it.
 
 Publishes one ``geometry_msgs/PoseStamped`` on ``novel_view/query`` (orientation from ENU

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr register BAG``: register the bag's camera images by SfM (COLMAP), metric with GPS."""
 
 from __future__ import annotations

@@ -1,1 +1,3 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """File formats outside ROS: photo metadata."""

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Photo metadata: EXIF capture time, focal length, GPS and DJI XMP gimbal attitude.
 
 Pillow reads the EXIF/GPS IFDs and the XMP packet (OpenCV exposes neither). Angles are degrees.

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr demo``: the main job on the default synthetic bag, through the real node graph over DDS.
 
 Starts bag_player, frame_subsampler, depth_refiner and view_renderer as separate processes (as

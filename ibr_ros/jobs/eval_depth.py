@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval depth``: depth refinement against ground truth on a synthetic bag (paper Tables 1 and 2).
 
 Views: every ``step``-th frame of the bag (at most ``max_views``), decoded from its JPEG images with

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval mono``: the monocular depth + sky model on held-out synthetic views and real photos.
 
 Synthetic views come from :func:`ibr_ros.jobs.mono_data.render_samples` with scene seeds from

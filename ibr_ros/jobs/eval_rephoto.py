@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval rephoto``: virtual rephotography of held-out views (Liu et al. 2020, IV-B, Table 3, Fig. 11).
 
 Views: every ``step``-th frame of a synthetic bag (at most ``max_views``), loaded as in

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Convert a folder of photos into a ROS 2 bag (``ibr bag from-images``).
 
 Topics written (all stamps = EXIF capture time; header stamps equal the bag log times):

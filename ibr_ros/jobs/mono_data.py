@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Randomised synthetic views for training and evaluating the monocular depth + sky model.
 
 Each scene seed gives a random :class:`~ibr_ros.core.synth.SceneConfig` (density of buildings and

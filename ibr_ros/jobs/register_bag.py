@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Register the camera images of a bag with SfM (:func:`ibr_ros.core.registration.sfm.register_images`).
 
 Reads the image topic (``sensor_msgs/Image`` or ``CompressedImage``), the first ``CameraInfo`` as

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Render a synthetic drone flight into a ROS 2 bag with ground truth (``ibr bag synth``).
 
 Topics (header stamps equal the bag log times; frame ``camera_optical``, poses in ``map``, ENU):

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Compile (or load from numba's cache) the kernels the nodes run, before they report ready.
 
 ``python -m ibr_ros.jobs.warmup`` runs once at ``make install`` from the installed package, so that

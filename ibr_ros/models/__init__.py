@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Models shipped with ibr_ros (see ``README.md`` beside this file) and a registry of downloadable ones.
 
 :func:`mono_spec` and :func:`sky_spec` turn a model given by name or path plus an I/O preset name

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Well-known ONNX models that ``ibr models fetch`` downloads (sha256-verified) into a local cache.
 
 Nothing here runs at import or at run time of the pipeline: fetching is an explicit user action

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Node parameter tables: one per node, shared by the rclpy nodes, ``ibr process``, ``config/*.yaml``
 and the README's node reference (no rclpy).
 

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``python -m ibr_ros.node_config [--write]``: check (or rewrite) what is generated from the parameter
 tables: ``config/<node>.yaml``, the node reference ``doc/nodes.md`` and the README's node list."""
 

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The bag_player's parameter table and the configuration built from it."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The depth_refiner's parameter table and the configuration built from it (no rclpy)."""
 
 from __future__ import annotations

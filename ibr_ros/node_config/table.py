@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Parameter tables: one per node, the single source of its ROS parameters (no rclpy).
 
 A :class:`ParamTable` lists a node's parameters (:class:`Param`: name, type from the default, range

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``bag_player``: replays a bag with its original message types and publishes ``/clock``.
 
 Topics, parameters and behaviour: ``doc/nodes.md`` (generated from

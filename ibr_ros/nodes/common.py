@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Shared plumbing of the ibr_ros nodes: QoS profiles, parameters with descriptors, bad-input
 accounting, matching messages by stamp (:class:`~ibr_ros.core.flight.stamps.StampAssembler`, re-exported)
 and the process entry point (init, spin, clean shutdown)."""

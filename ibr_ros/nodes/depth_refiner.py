@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``depth_refiner``: MVS + refined depth for every keyframe, shardable over several processes.
 
 Topics, parameters and behaviour: the ``depth_refiner`` section of ``doc/nodes.md`` (generated from

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``frame_subsampler``: picks sharp, well-spaced keyframes from a camera stream.
 
 Topics, parameters and behaviour: ``doc/nodes.md`` (generated from

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``view_renderer``: answers novel-view queries from the keyframe model.
 
 Subscribes (reliable, transient local, so a renderer started late or restarted receives the whole

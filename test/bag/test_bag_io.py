@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Bag reading, writing and topic detection (ibr_ros.bag)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The bag_player's playback policy (ibr_ros.bag.playback): QoS, remaps, playable topics, time window."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag info``: output, JSON, and one-line errors for broken bags."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Photo metadata from EXIF / DJI XMP."""
 
 from __future__ import annotations

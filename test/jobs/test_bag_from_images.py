@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag from-images``: photos to a bag, on the real brighton_beach photos and on made-up ones."""
 
 from __future__ import annotations

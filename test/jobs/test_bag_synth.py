@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr bag synth``: a deterministic synthetic flight with ground truth, written as a bag."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """End to end over DDS: the node graph as separate processes on the shipped synthetic bag.
 
 bag_player -> frame_subsampler -> depth_refiner -> view_renderer, then novel-view queries between

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval depth`` on the shipped synthetic flight and two other seeds: the paper's quality bars.
 
 Bars (Depth refinement issue): the LUT remap beats the median-factor and linear remaps in Abs Rel

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval rephoto`` on the shipped synthetic flight and two other seeds: the rephotography bars.
 
 Bars of the issue: "ours beats splat and ULR in the 99-100 % tail (GT depth and refined depth); fused

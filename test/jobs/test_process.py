@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr process``: a short synthetic flight through the offline pipeline into an output bag.
 
 One small orbit (320x180, 12 frames) with the frame_subsampler's scene depth hint of the demo

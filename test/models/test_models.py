@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The shipped monocular depth + sky model: file, I/O convention, adapters and held-out quality."""
 
 from __future__ import annotations

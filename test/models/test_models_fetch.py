@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr models fetch``: download, sha256 verification and errors against a local HTTP server."""
 
 from __future__ import annotations

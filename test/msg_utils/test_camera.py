@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """msg_utils.camera_info and ibr_ros.core.geometry.undistort."""
 
 from __future__ import annotations

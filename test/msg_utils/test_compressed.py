@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """msg_utils.compressed: CompressedImage (compressed and compressedDepth transports)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """msg_utils.CONVERSION_ERRORS: every way a malformed message fails to convert is one of them."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """msg_utils.image: sensor_msgs/Image <-> numpy for both flavours, depth conventions."""
 
 from __future__ import annotations

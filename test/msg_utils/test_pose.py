@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """msg_utils.pose, msg_utils.navsat, msg_utils.flavor and ibr_ros.core.geometry.geodesy."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The depth_refiner's parameter table: defaults are the core defaults, cross-parameter rules, errors."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Node parameter tables: the single source of the nodes' parameters, ``ibr process``'s configurations,
 ``config/*.yaml`` and the README's node reference."""
 

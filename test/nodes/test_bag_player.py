@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """bag_player in its own process, received over DDS by a subscriber node in the test process.
 
 Checks: the shipped bag's first 3 s arrive complete, byte-identical and in order with /clock at the

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """An Image published by one process arrives bit-exact in another over DDS."""
 
 from __future__ import annotations

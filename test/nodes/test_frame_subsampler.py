@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """frame_subsampler in its own process, fed over DDS from the shipped synthetic bag.
 
 The test node publishes every 2nd frame of the bag's first 12 s (CompressedImage + CameraInfo +

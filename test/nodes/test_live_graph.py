@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 # ruff: noqa: PT018
 """The live graph works the first time, every time: the graph's own statements decide, nothing is
 lost silently, the model outlives any one process, signals end everything cleanly.

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """depth_refiner with the shipped ONNX model for monocular depth and sky, in this process.
 
 Three keyframes of the shipped synthetic bag (frames 48, 72, 96, 320x180, all with stored ground

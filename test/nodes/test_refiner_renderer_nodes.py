@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """depth_refiner, view_renderer and ``ibr query`` over DDS, each node in its own process.
 
 The test process publishes 8 keyframes of the shipped synthetic bag (every 24th frame, 640x360,

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """depth_refiner in SfM mode, in this process over DDS: keyframes without poses.
 
 Eight keyframes of the shipped synthetic orbit (every 24th frame, 320x180, all with stored ground

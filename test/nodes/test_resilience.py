@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Resilience: every node gets 1000 malformed messages interleaved with valid ones.
 
 frame_subsampler, depth_refiner and view_renderer run in this process: one executor thread spins

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Pure helpers of tools/train_mono.py (torch itself is an optional training extra, not needed here)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-keyframe depth: plane-sweep MVS, pruning, monocular depth and its per-view lookup table,
 MST non-local fusion, sky masks, the refinement pipeline (one keyframe's step: ``refine_job``), the
 refinement scheduler and depth colouring for previews.

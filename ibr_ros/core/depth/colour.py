@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Depth maps as colour images for people: turbo-coloured inverse depth, black where unknown."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Non-local MVS/monocular depth fusion on a minimum spanning tree (Liu et al. 2020, Eq. 5-13).
 
 The colour image is a 4-connected graph whose edge weight is the largest absolute channel difference

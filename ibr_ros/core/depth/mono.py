@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Monocular depth: ONNX models with explicit I/O conventions, and a geometric ground-plane prior.
 
 Every backend produces the paper's G(x) (Section III-A): ``uint16`` 0..65535, larger = nearer, 0 for

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-view multi-view stereo depth: plane sweep + ZNCC on the CPU, COLMAP-style geometric filter.
 
 Stands in for COLMAP's *geometric* depth maps (Liu et al. 2020, Section III-A) on machines without

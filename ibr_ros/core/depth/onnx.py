@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """ONNX model sessions and input tensors shared by the monocular depth and sky models (CPU only)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Pruning median filters for MVS depth maps (Liu et al. 2020, "MVS Depth Preprocessing").
 
 A known MVS sample ``d`` is pruned (set to 0) when ``d / m`` is outside ``[0.9, 1.1]``, where ``m``

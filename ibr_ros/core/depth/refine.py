@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-view depth refinement (paper Section III-A): MVS -> prune -> mono remap -> MST fusion -> sky.
 
 :class:`DepthRefiner` composes :mod:`mvs`, :mod:`prune`, :mod:`mono`, :mod:`remap`, :mod:`fusion`

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-view remapping of monocular depth to the MVS depth scale (Liu et al. 2020, Eq. 1-4).
 
 The monocular network output ``G`` is uint16 (0..65535) and grows as the scene gets *nearer* (it

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Which keyframe to refine next, with which MVS neighbours and over which depth range.
 
 Pure scheduling policy of the ``depth_refiner`` node and the offline ``ibr process`` job; it keeps

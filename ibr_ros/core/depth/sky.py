@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Sky: segmentation (ONNX model or geometric/photometric fallback), erosion and depth (Eq. 14).
 
 The paper segments the sky with DeepLabv3+, erodes the mask with a disk of about 3% of the image

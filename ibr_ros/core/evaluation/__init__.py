@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Evaluation only, not on the product path: rephotography error (shiftable L1) and the renderer
 baselines the product is measured against (point splat, ULR).
 """

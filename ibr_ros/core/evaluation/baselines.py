@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Renderer baselines for evaluation (not on the product path): point splatting and an unstructured
 lumigraph (ULR) blend, with :class:`~ibr_ros.core.render.renderer.NovelViewRenderer`'s interface,
 view selection and refusals.

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Virtual-rephotography error (Waechter et al. 2017) as used by Liu et al. 2020, Sec. IV-B.
 
 A held-out input photo (ground truth) is re-rendered from its own pose and compared with the

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The flight as it arrives: keyframe selection, the subsampler's latched flight status, shard
 membership of sharded refiners, and assembly of messages matched by stamp.
 """

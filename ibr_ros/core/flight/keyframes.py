@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Keyframe selection for a drone video: reject blurred frames, keep frames that moved enough.
 
 The paper subsamples 20-30 images per flight. A frame becomes a keyframe when it is sharp and,

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Assemble the messages of one frame (image, camera_info, pose, ...) by identical header stamps.
 
 :class:`StampAssembler` keeps the partial records of at most ``max_pending`` stamps (ns). When a new

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Policy of the live graph, as small pure classes: what the graph states decides, never a timer.
 
 - :class:`PoseSource`: whether this flight has poses (the frame_subsampler decides it from its pose

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Cameras and geometry: pinhole cameras (REP-103 optical frame: z forward, x right, y down),
 rigid transforms (4x4 camera-to-world matrices, metres), geodesy (WGS-84 -> local ENU), undistortion,
 plane fitting and query paths between keyframes.

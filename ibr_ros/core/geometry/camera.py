@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Pinhole camera model matching ``sensor_msgs/CameraInfo``.
 
 Pixel coordinates: ``(u, v)`` with u to the right and v down, the centre of the top-left pixel at

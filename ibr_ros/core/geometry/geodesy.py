@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """WGS84 geodetic <-> ECEF <-> local ENU coordinates, vectorised with numpy.
 
 Latitude/longitude in degrees, altitude in metres above the WGS84 ellipsoid (as in

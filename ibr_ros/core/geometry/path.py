@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Query paths along a flight: poses between consecutive keyframes (4x4 camera-to-world, metres)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Robust plane fitting to 3-D points (world frame, metres)."""
 
 from __future__ import annotations

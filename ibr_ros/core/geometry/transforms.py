@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Rigid-body geometry on numpy arrays.
 
 Conventions used across ibr_ros:

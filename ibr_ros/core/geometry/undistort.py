@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Lens undistortion of images and pixel coordinates with OpenCV (plumb_bob, rational_polynomial).
 
 Pixel conventions as in :mod:`ibr_ros.core.geometry.camera`. The rectification rotation ``R`` and the

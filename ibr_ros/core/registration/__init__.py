@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Registration of pose-less images: pycolmap structure from motion and the incremental session
 that keeps one frame across updates, and the depth_refiner's SfM-mode trigger.
 """

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``pycolmap``, imported without its signal handlers.
 
 pycolmap's import installs glog's failure signal handler for SIGTERM (and others), so a process

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Camera registration: structure from motion with COLMAP (pycolmap, CPU) and GPS alignment.
 
 :func:`register_images` writes the images to a work folder, extracts SIFT features, matches them,

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Incremental registration of pose-less keyframes (SfM mode): :class:`SfmSession`.
 
 Views (RGB uint8, a :class:`PinholeCamera` from their CameraInfo, a stamp in ns, optionally a GPS

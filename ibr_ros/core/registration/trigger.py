@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """When the depth_refiner registers keyframes itself (SfM mode): pure policy, no images, no ROS.
 
 :class:`SfmTrigger` follows what the graph states and decides; the node does the work (runs

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Novel views: SLIC superpixels, the shape-preserving warp, the raster and blend kernels and the
 renderer (the 4 nearest views, a depth test, blending); settings in :class:`RenderConfig`.
 """

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-pixel blending of the warped source views (numba kernels) and bilinear colour lookup."""
 
 from __future__ import annotations

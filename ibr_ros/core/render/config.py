@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Renderer settings: :class:`RenderConfig` and the fields that give the paper's renderer exactly."""
 
 from __future__ import annotations

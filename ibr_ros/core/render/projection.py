@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Reprojection of source-view pixels into the novel view, shared by the raster and blend kernels.
 
 Cameras are undistorted pinholes (REP-103 optical frame: z forward, x right, y down; pixel centres

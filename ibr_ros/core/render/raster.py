@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Rasterisation of warped superpixels into per-view superpixel-id images (numba kernels)."""
 
 from __future__ import annotations

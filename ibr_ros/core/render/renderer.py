@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Novel-view rendering from posed RGB-D source views (Liu et al. 2020, Sec. III-B).
 
 ``NovelViewRenderer(views, config).render(t_wc, camera)``: the paper's pipeline; the defaults add

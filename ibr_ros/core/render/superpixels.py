@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """SLIC superpixels (Achanta et al. 2012, TPAMI 34(11)) in numba, and per-superpixel depth statistics.
 
 Superpixels are the warping unit of the renderer (Liu et al. 2020, Sec. III-B): every superpixel is

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Shape-preserving superpixel warp (Liu et al. 2020, Sec. III-B, Eq. 15-18) in numba.
 
 Every superpixel ``S_k`` of a source view gets one *circumscribed triangle* ``T = (v1, v2, v3)``

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Synthetic oblique drone flights over a procedural town with exact ground truth.
 
 Our stand-in for the paper's GTAV set: :func:`build_scene` makes the town, :func:`make_trajectory`

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Numba ray caster for :class:`~ibr_ros.core.synth.scene.Scene` with exact ground truth.
 
 Shading is view-independent: every surface colour is a function of the 3D point only (procedural

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Procedural town for the synthetic drone data set: a seed in, plain numpy arrays out.
 
 World frame: ENU metres (x east, y north, z up), flat ground at z = 0, town centred on the origin

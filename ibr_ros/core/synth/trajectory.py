@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Smooth oblique drone trajectories over the synthetic town (ENU metres, optical-frame poses).
 
 Every pose is ``rotation_from_ypr(yaw, pitch, 0)`` at a position: the camera never rolls, the

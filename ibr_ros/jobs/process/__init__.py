@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """``ibr process``: a whole bag through the node graph's pipeline in one process, into an output bag.
 
 The same core code as the nodes, run synchronously in bag-time order (deterministic):

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Previews, and errors against the exact ground truth of a synthetic bag."""
 
 from __future__ import annotations

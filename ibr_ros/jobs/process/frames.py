@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Reading the bag: topics, frames matched by header stamp, and the frame_subsampler's keyframes
 (streaming, for a target count in two passes, or without poses per interval)."""
 

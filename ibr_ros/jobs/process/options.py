@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """What the caller of ``ibr process`` chooses besides the node parameters, and its progress callback."""
 
 from __future__ import annotations

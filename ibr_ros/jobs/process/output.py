@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The output bag (the graph's topics, types and QoS) and ``summary.md``/``summary.json`` helpers."""
 
 from __future__ import annotations

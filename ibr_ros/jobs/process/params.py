@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The node parameters ``ibr process`` reads (``config/<node>.yaml`` + a ROS 2 params file) and the core
 configurations mapped from them."""
 

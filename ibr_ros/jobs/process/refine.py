@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """MVS + refinement of every keyframe with the whole flight known (the depth_refiner's policy)."""
 
 from __future__ import annotations

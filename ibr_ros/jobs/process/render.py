@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Novel views along the keyframe path, rendered from the refined keyframes (the view_renderer)."""
 
 from __future__ import annotations

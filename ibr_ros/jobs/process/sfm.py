@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """SfM mode: all keyframes registered together by one SfM session (with GPS when the bag has it)."""
 
 from __future__ import annotations

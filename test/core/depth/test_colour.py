@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """colour_depth: one turbo colouring of inverse depth for previews (node debug topics, evaluation PNGs)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """MST non-local fusion (Eq. 5-13): the tree, the aggregation against brute force, the behaviour."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Monocular depth adapters (ONNX conventions, ground-plane prior) and sky handling."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Per-view MVS depth: accuracy on synthetic ground truth, geometry, neighbours, filter, bad input."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Pruning median filters: exact against brute force, and what they keep and remove."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """DepthRefiner: the composition of Section III-A on synthetic ground truth."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """refine_job: the MVS -> refinement step the depth_refiner node and ``ibr process`` share."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Monocular depth remapping by the per-view lookup table (Eq. 1-4) and its two baselines."""
 
 from __future__ import annotations

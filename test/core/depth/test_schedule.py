@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """RefineScheduler: which keyframe is refined when, with which neighbours and depth range (no DDS)."""
 
 from __future__ import annotations

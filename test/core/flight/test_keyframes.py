@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Keyframe selection: blur rejection, baseline/rotation/interval rules, offline target count."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """StampAssembler: messages of one frame matched by stamp, bounded, incomplete ones reported (no DDS)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Pose and camera conventions (REP-103 optical frame, ENU world)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Camera registration (``ibr_ros.core.registration.sfm`` and ``ibr_ros.jobs.register_bag``).
 
 Two end-to-end runs: the real brighton_beach bag (18 DJI photos with EXIF GPS, must come out in

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Incremental SfM registration of pose-less keyframes (``ibr_ros.core.registration.sfm_session``).
 
 Eight frames of the shipped synthetic orbit (every 24th, ~19 m apart), registered at 320x180: the

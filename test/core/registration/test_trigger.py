@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """SfmTrigger: when the depth_refiner registers keyframes without poses itself (no DDS, no SfM)."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """The output-camera rule shared by the view_renderer node and ``ibr process``."""
 
 from __future__ import annotations

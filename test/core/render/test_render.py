@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Shape-preserving warp (Eq. 15-18) and the novel-view renderer: exactness, quality, caching, bad input."""
 
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """SLIC superpixels and per-superpixel depth statistics."""
 
 from __future__ import annotations

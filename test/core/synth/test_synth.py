@@ -1,3 +1,5 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
 """Synthetic drone data set: determinism, exact multi-view ground truth, content, trajectories."""
 
 from __future__ import annotations
