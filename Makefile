@@ -50,8 +50,8 @@ test-fast: install
 
 # ruff over all Python; mypy over ibr_ros and msg_utils (configuration: setup.cfg [mypy]).
 lint: install
-	$(BIN)/ruff check ibr_ros msg_utils test bench launch setup.py
-	$(BIN)/ruff format --check ibr_ros msg_utils test bench launch setup.py
+	$(BIN)/ruff check ibr_ros msg_utils test bench tools launch setup.py
+	$(BIN)/ruff format --check ibr_ros msg_utils test bench tools launch setup.py
 	$(BIN)/mypy
 
 bench: install
