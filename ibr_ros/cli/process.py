@@ -5,8 +5,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-from collections.abc import Callable
 from pathlib import Path
 
 UNITS = {
@@ -20,7 +18,7 @@ UNITS = {
 
 
 def run(args: argparse.Namespace) -> int:
-    from ibr_ros.cli.progress import progress_bar
+    from ibr_ros.cli.progress import staged_progress
     from ibr_ros.jobs.process import ProcessOptions, process_bag
 
     options = ProcessOptions(
@@ -40,18 +38,7 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         overwrite=args.overwrite,
     )
-    with contextlib.ExitStack() as stack:
-        bars: dict[str, Callable[[int, int | None], None]] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in bars:
-                stack.close()  # one bar at a time: the previous stage is over
-                bars.clear()
-                bars[stage] = stack.enter_context(
-                    progress_bar(stage, unit=UNITS.get(stage, 'item'), enabled=args.progress)
-                )
-            bars[stage](done, total)
-
+    with staged_progress(UNITS, enabled=args.progress) as progress:
         summary = process_bag(Path(args.bag), Path(args.out), options, progress)
     print((Path(args.out) / 'summary.md').read_text(), end='')
     return 0 if summary['refined'] else 1

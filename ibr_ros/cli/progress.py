@@ -4,8 +4,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 
 from tqdm import tqdm
@@ -32,3 +33,24 @@ def progress_bar(
     finally:
         if bar is not None:
             bar.close()
+
+
+@contextmanager
+def staged_progress(
+    units: Mapping[str, str], *, enabled: bool | None = None
+) -> Iterator[Callable[[str, int, int], None]]:
+    """Yield a ``progress(stage, done, total)`` callback: one bar per stage, a new stage closes the
+    previous bar (``units``: the unit of each stage's bar, ``item`` for others)."""
+    with contextlib.ExitStack() as stack:
+        bars: dict[str, Callable[[int, int | None], None]] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in bars:
+                stack.close()  # one bar at a time: the previous stage is over
+                bars.clear()
+                bars[stage] = stack.enter_context(
+                    progress_bar(stage, unit=units.get(stage, 'item'), enabled=enabled)
+                )
+            bars[stage](done, total)
+
+        yield progress

@@ -2,14 +2,28 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """``ibr eval rephoto``: virtual rephotography of held-out views (Liu et al. 2020, IV-B, Table 3, Fig. 11).
 
-Views: every ``step``-th frame of a synthetic bag (at most ``max_views``), loaded as in
-:mod:`ibr_ros.jobs.eval_depth`. Holdout ``every-N``: the views at positions ``N - 1, 2N - 1, ...`` of
-that selection (the 8th, 16th, ... view for ``every-8th``) are held out one at a time: each is
-rendered at its own pose from all the OTHER selected views (leave-one-out) and compared with its
-own photo (the decoded JPEG of the bag: the paper's ground truth is the held-out input photo) and,
-as a second reference, with the exact re-rendered ground-truth frame.
+Holdout ``every-N``: the views at positions ``N - 1, 2N - 1, ...`` of the selection (the 8th, 16th,
+... view for ``every-8th``) are held out; each is rendered at its own pose from the other views and
+compared with its own photo (the decoded JPEG of the bag: the paper's ground truth is the held-out
+input photo). Two ways to choose the views (``views_from``; ``auto``: frames for a bag with
+``synth.json``, keyframes for any other):
 
-Depth of the views, computed once and reused by every holdout: MVS (CPU backend) over all selected
+Keyframes (any bag, real captures): the keyframes ``ibr process`` chooses with the same node
+parameters (``config/*.yaml`` + ``params``; :func:`ibr_ros.jobs.process.frames.subsample`), registered
+by SfM when the bag has no poses (:func:`ibr_ros.jobs.process.sfm.register_keyframes`, GPS -> ENU
+with a NavSatFix topic: all keyframes together, so SfM sees the held-out photos; the summary says
+so), else with the bag's poses. The kept keyframes alone go to
+:func:`ibr_ros.jobs.process.refine.refine_all` (MVS + refinement with the depth_refiner's schedule):
+a held-out keyframe is nobody's MVS neighbour and not in the render set. Every held-out photo is
+rendered once per method from the refined kept keyframes (``fused`` depth; ``gt`` too for a
+synthetic bag with its poses), with the view_renderer's render settings, and scored against itself
+(undistorted with SfM's camera in SfM mode, as the sources are).
+
+Frames (a synthetic bag): every ``step``-th frame (at most ``max_views``), loaded as in
+:mod:`ibr_ros.jobs.eval_depth`, leave-one-out: each held-out view is rendered from all the OTHER
+selected views, and also compared with the exact re-rendered ground-truth frame.
+
+Depth of the frames, computed once and reused by every holdout: MVS (CPU backend) over all selected
 views, held-out ones included (their photos take part in their neighbours' MVS, as when one
 reconstruction serves every holdout), then :class:`~ibr_ros.core.depth.refine.DepthRefiner`. Sources:
 
@@ -21,21 +35,24 @@ reconstruction serves every holdout), then :class:`~ibr_ros.core.depth.refine.De
 * ``gt``: ground-truth depth (``+inf`` sky): the upper bound.
 
 Methods (``renderer@depth``): ``ours`` (this project's renderer: the options' ``render`` settings,
-by default :class:`RenderConfig`'s) on every source; ``paper`` (the same with
-:meth:`RenderConfig.as_paper`: the paper's renderer exactly), ``ulr`` and ``splat`` (the baselines
-of :mod:`ibr_ros.core.evaluation.baselines`) on ``fused`` and ``gt``.
+by default :class:`RenderConfig`'s on frames, the view_renderer's on keyframes) on every source;
+``paper`` (the same with :meth:`RenderConfig.as_paper`: the paper's renderer exactly), ``ulr``
+and ``splat`` (the baselines of :mod:`ibr_ros.core.evaluation.baselines`) on ``fused`` and ``gt``.
+On keyframes only ``fused`` (and ``gt``) exist: the other sources' methods are left out.
 
 Scores (0..255 colour units, :mod:`ibr_ros.core.evaluation.rephoto`): the holes of every render (pixels no
 source covers) are filled by image inpainting (``cv2.inpaint`` Telea, radius 3) before scoring, as
 the paper fills COLMAP's holes "for fairness"; ``completeness`` is the rendered fraction and the
 ``*_unfilled`` numbers score the holes black. Per holdout and method: the AUC (= mean error) for
 every ``(patch, shift)`` window (Table 3: 5/7/15 x +-2/+-1/0), and for the main window 7x7 +-2 the
-tail (mean of the worst 1 %, the paper's 99-100 % zoom), the median and the same against the
-re-rendered frame. Summary: the mean over holdouts (Table 3 sums over datasets: ``auc_sum``).
+tail (mean of the worst 1 %, the paper's 99-100 % zoom), the median, PSNR (dB) and SSIM of the
+scored image (:mod:`ibr_ros.core.evaluation.metrics`) and, with ground truth, AUC and tail against
+the re-rendered frame. Summary: the mean over holdouts (Table 3 sums over datasets: ``auc_sum``).
 Curves (Fig. 11a/b): per method the main-window errors of all holdouts pooled and sorted.
 
 Writes ``rephoto_eval.md``, ``rephoto_eval.json``, ``rephoto_curves.png`` and ``holdout_NNN.png``
-(photo | ours | ULR | splat, all on fused depth | error map of ours) into the output folder.
+(photo | ours | ULR | splat, all on fused depth | error map of ours; ``NNN`` the frame, or the
+keyframe's position) into the output folder, each atomically.
 """
 
 from __future__ import annotations
@@ -48,7 +65,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, cast
 
 import cv2
 import numpy as np
@@ -57,13 +74,18 @@ from numpy.typing import NDArray
 from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.depth.sky import apply_sky_depth
-from ibr_ros.core.evaluation import SplatRenderer, UlrRenderer, shiftable_l1
+from ibr_ros.core.evaluation import SplatRenderer, UlrRenderer, psnr, shiftable_l1, ssim
+from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import load_views, sparse_points, write_atomic
 from ibr_ros.jobs.synth_bag import GroundTruthRenderer
 
+if TYPE_CHECKING:
+    from ibr_ros.jobs.process.options import Progress
+
 __all__ = [
+    'DEFAULT_HOLDOUT',
     'DEPTH_SOURCES',
     'MAIN_WINDOW',
     'METHODS',
@@ -73,6 +95,7 @@ __all__ = [
     'evaluate_rephoto',
     'holdout_indices',
     'parse_holdout',
+    'resolve_views_from',
 ]
 
 LOG = logging.getLogger(__name__)
@@ -88,6 +111,9 @@ DEPTH_LABELS = {
     'gt': 'GT depth',
 }
 ERROR_MAP_MAX = 64.0  # colour units at the top of the error-map colour scale
+ViewsFrom = Literal['auto', 'frames', 'keyframes']
+#: ``holdout_every`` when not given: every 8th of the frames of a synthetic bag, every 4th keyframe.
+DEFAULT_HOLDOUT = {'frames': 8, 'keyframes': 4}
 
 
 @dataclass(frozen=True)
@@ -150,31 +176,47 @@ def _window_key(patch: int, shift: int) -> str:
 class RephotoEvalOptions:
     """Which views, holdouts, methods and windows to evaluate (see the module docstring).
 
+    ``views_from``: ``frames`` (every ``step``-th frame of a synthetic bag, from ``first``, at most
+    ``max_views``), ``keyframes`` (as ``ibr process`` chooses and registers them: ``params``,
+    ``max_keyframes``, ``sfm``, ``gps`` as there) or ``auto`` (``frames`` when the bag has a
+    ``synth.json``). ``holdout_every``: hold out every N-th view (None: :data:`DEFAULT_HOLDOUT`).
     ``windows``: ``(patch, shift)`` pairs of the Table 3 analogue (the main window 7x7 +-2 is
-    always scored); ``methods``: keys of :data:`METHODS`; ``render``: base renderer settings
-    (``paper`` switches the additions off; the baselines use its view selection); ``fill_holes``:
-    inpaint render holes before scoring; ``png``: write ``holdout_NNN.png``.
+    always scored); ``methods``: keys of :data:`METHODS` (on keyframes those whose depth exists:
+    ``fused``, and ``gt`` on a synthetic bag with its poses); ``render``: base renderer settings
+    (``paper`` switches the additions off; the baselines use its view selection; None: the
+    defaults on frames, the view_renderer's parameters on keyframes); ``fill_holes``: inpaint render
+    holes before scoring; ``png``: write ``holdout_NNN.png``.
     """
 
     step: int = 5
     max_views: int = 40
     first: int = 0
-    holdout_every: int = 8
+    holdout_every: int | None = None
     windows: tuple[tuple[int, int], ...] = TABLE3_WINDOWS
     methods: tuple[str, ...] = tuple(m.key for m in METHODS)
     fill_holes: bool = True
-    render: RenderConfig = field(default_factory=RenderConfig)
+    render: RenderConfig | None = None
     refiner: RefinerConfig = field(default_factory=RefinerConfig)
     mvs: MvsOptions = field(default_factory=MvsOptions)
     seed: int = 0
     png: bool = True
+    views_from: ViewsFrom = 'auto'
+    params: Path | None = None
+    max_keyframes: int | None = None
+    sfm: bool = False
+    gps: bool = True
 
     def __post_init__(self) -> None:
-        if self.step < 1 or self.max_views < 2 or self.first < 0 or self.holdout_every < 1:
+        every = self.holdout_every
+        if self.step < 1 or self.max_views < 2 or self.first < 0 or (every is not None and every < 1):
             raise UserError(
                 f'need step >= 1, max_views >= 2, first >= 0 and holdout every >= 1, got step={self.step}, '
-                f'max_views={self.max_views}, first={self.first}, every={self.holdout_every}'
+                f'max_views={self.max_views}, first={self.first}, every={every}'
             )
+        if self.views_from not in ('auto', 'frames', 'keyframes'):
+            raise UserError(f"views_from must be 'auto', 'frames' or 'keyframes', got {self.views_from!r}")
+        if self.max_keyframes is not None and self.max_keyframes < 2:
+            raise UserError(f'max_keyframes (--max-keyframes) must be >= 2, got {self.max_keyframes}')
         unknown = [k for k in self.methods if k not in _BY_KEY]
         if unknown or not self.methods:
             raise UserError(f'unknown or no methods {unknown}; known: {", ".join(_BY_KEY)}')
@@ -248,12 +290,13 @@ def _fill(rgb: NDArray[np.uint8], valid: NDArray[np.bool_]) -> NDArray[np.uint8]
 
 def _score_render(
     photo: NDArray[np.uint8],
-    gt_frame: NDArray[np.uint8],
+    gt_frame: NDArray[np.uint8] | None,
     rgb: NDArray[np.uint8],
     valid: NDArray[np.bool_],
     o: RephotoEvalOptions,
 ) -> tuple[dict, NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.uint8]]:
-    """Scores of one render, its main-window error map, the sorted errors (filled, holes black), the image."""
+    """Scores of one render (``gt_frame``: the exact frame of a synthetic bag, if any), its main-window
+    error map, the sorted errors (filled, holes black) and the scored image."""
     img = _fill(rgb, valid) if o.fill_holes else rgb
     main = shiftable_l1(photo, img, *MAIN_WINDOW)
     auc, tail, median, curve = _curve_stats(main)
@@ -269,8 +312,10 @@ def _score_render(
         row['auc_unfilled'], row['tail_unfilled'], _, raw_curve = _curve_stats(
             shiftable_l1(photo, rgb, *MAIN_WINDOW)
         )
-    vs_gt = _curve_stats(shiftable_l1(gt_frame, img, *MAIN_WINDOW))
-    row['auc_vs_gt_frame'], row['tail_vs_gt_frame'] = vs_gt[0], vs_gt[1]
+    row['psnr'], row['ssim'] = psnr(photo, img), ssim(photo, img)
+    if gt_frame is not None:
+        vs_gt = _curve_stats(shiftable_l1(gt_frame, img, *MAIN_WINDOW))
+        row['auc_vs_gt_frame'], row['tail_vs_gt_frame'] = vs_gt[0], vs_gt[1]
     return row, main, curve, raw_curve, img
 
 
@@ -281,21 +326,75 @@ def evaluate_rephoto(
     bag: Path,
     out: Path,
     options: RephotoEvalOptions | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> dict:
-    """Run the evaluation (see module docstring); returns the JSON summary."""
+    """Run the evaluation (see module docstring); returns the JSON summary.
+
+    ``progress(stage, done, total)``: stage ``rephoto`` (frames), or ``frames``, ``sfm``,
+    ``keyframes`` and ``holdouts`` (keyframes).
+
+    Raises:
+        UserError: Unreadable bag, no synth.json with ``views_from`` ``frames``, no holdout left,
+            bad parameters, a failed SfM registration.
+
+    """
     o = options or RephotoEvalOptions()
     bag, out = Path(bag), Path(out)
+    if resolve_views_from(bag, o.views_from) == 'frames':
+        return _evaluate_frames(bag, out, o, progress)
+    return _evaluate_keyframes(bag, out, o, progress)
+
+
+def resolve_views_from(bag: Path, views_from: ViewsFrom) -> Literal['frames', 'keyframes']:
+    """``auto``: ``frames`` for a synthetic bag (with ``synth.json``), else ``keyframes``."""
+    if views_from == 'auto':
+        return 'frames' if (Path(bag) / 'synth.json').is_file() else 'keyframes'
+    return views_from
+
+
+def _render_holdout(
+    photo: NDArray[np.uint8],
+    gt_rgb: NDArray[np.uint8] | None,
+    t_wc: NDArray[np.float64],
+    camera: PinholeCamera,
+    renderers: dict[str, NovelViewRenderer],
+    o: RephotoEvalOptions,
+    timings: dict[str, float],
+) -> tuple[dict[str, dict], dict[str, tuple[NDArray[np.uint8], NDArray[np.float32]]], dict, NDArray | None]:
+    """Every method's render of one held-out view, scored against its photo: per-method scores, the
+    (image, error map) shown in the PNG, the sorted errors and the holes-black errors of ``ours@mvs``."""
+    scores_by: dict[str, dict] = {}
+    shown: dict[str, tuple[NDArray[np.uint8], NDArray[np.float32]]] = {}
+    curves: dict[str, NDArray[np.float32]] = {}
+    raw: NDArray[np.float32] | None = None
+    for key, renderer in renderers.items():
+        tick = time.perf_counter()
+        r = renderer.render(t_wc, camera)
+        timings['render'] += time.perf_counter() - tick
+        tick = time.perf_counter()
+        scores, main, curve, raw_curve, img = _score_render(photo, gt_rgb, r.rgb, r.valid, o)
+        timings['score'] += time.perf_counter() - tick
+        scores['used_frames'] = [int(renderer.views[i].name) for i in r.used_views]
+        scores['reason'] = r.reason
+        scores_by[key], shown[key], curves[key] = scores, (img, main), curve
+        if key == 'ours@mvs':
+            raw = raw_curve
+    return scores_by, shown, curves, raw
+
+
+def _evaluate_frames(bag: Path, out: Path, o: RephotoEvalOptions, progress: Progress | None) -> dict:
+    """Every ``step``-th frame of a synthetic bag, leave-one-out (module docstring: Frames)."""
     timings: dict[str, float] = {}
     tick = time.perf_counter()
     gt_renderer = GroundTruthRenderer(bag)
     picked = load_views(bag, o.step, o.max_views, o.first)
     views = [v for _, v in picked]
     frames = [i for i, _ in picked]
-    hold = holdout_indices(len(views), o.holdout_every)
+    every = o.holdout_every or DEFAULT_HOLDOUT['frames']
+    hold = holdout_indices(len(views), every)
     if not hold:
         raise UserError(
-            f'{bag}: {len(views)} views selected, holding out every {o.holdout_every}th leaves none: '
+            f'{bag}: {len(views)} views selected, holding out every {every}th leaves none: '
             'select more views (--step, --max-views) or hold out more often'
         )
     gts = [gt_renderer.render(v.t_wc, v.camera) for v in views]
@@ -303,51 +402,209 @@ def evaluate_rephoto(
     timings['load'] = time.perf_counter() - tick
     total = len(views) + len(hold)
     tick = time.perf_counter()
-    depths, notes = _depth_sources(views, gts, o, (lambda d: progress(d, total)) if progress else None)
+    depths, notes = _depth_sources(
+        views, gts, o, (lambda d: progress('rephoto', d, total)) if progress else None
+    )
     timings['depth'] = time.perf_counter() - tick
     methods = [_BY_KEY[k] for k in o.methods]
+    base = o.render or RenderConfig()
     pooled: dict[str, list[NDArray[np.float32]]] = {m.key: [] for m in methods}
     pooled_raw: list[NDArray[np.float32]] = []
     per_holdout = []
     timings['render'] = timings['score'] = 0.0
     for n_done, h in enumerate(hold):
         view = views[h]
-        row: dict = {'frame': frames[h], 'view': h, 'methods': {}}
-        shown: dict[str, tuple[NDArray[np.uint8], NDArray[np.float32] | None]] = {}
-        for m in methods:
-            sources = [
-                SourceView(v.rgb, depths[m.depth][k], v.camera, v.t_wc, name=str(frames[k]))
-                for k, v in enumerate(views)
-                if k != h
-            ]
-            tick = time.perf_counter()
-            r = m.renderer(sources, o.render).render(view.t_wc, view.camera)
-            timings['render'] += time.perf_counter() - tick
-            tick = time.perf_counter()
-            scores, main, curve, raw_curve, img = _score_render(view.rgb, gts[h].rgb, r.rgb, r.valid, o)
-            timings['score'] += time.perf_counter() - tick
-            scores['used_frames'] = [int(sources[i].name) for i in r.used_views]
-            scores['reason'] = r.reason
-            row['methods'][m.key] = scores
-            pooled[m.key].append(curve)
-            if m.key == 'ours@mvs':
-                pooled_raw.append(raw_curve)
-            shown[m.key] = (img, main)
+        renderers = {
+            m.key: m.renderer(
+                [
+                    SourceView(v.rgb, depths[m.depth][k], v.camera, v.t_wc, name=str(frames[k]))
+                    for k, v in enumerate(views)
+                    if k != h
+                ],
+                base,
+            )
+            for m in methods
+        }
+        scores, shown, curves, raw = _render_holdout(
+            view.rgb, gts[h].rgb, view.t_wc, view.camera, renderers, o, timings
+        )
+        row: dict = {'frame': frames[h], 'view': h, 'methods': scores}
+        for k, c in curves.items():
+            pooled[k].append(c)
+        if raw is not None:
+            pooled_raw.append(raw)
         per_holdout.append(row)
         if o.png:
             _holdout_png(out / f'holdout_{frames[h]:03d}.png', view.rgb, shown, row['methods'])
         if progress is not None:
-            progress(len(views) + n_done + 1, total)
-    summary = _summarise(bag, o, frames, hold, notes, per_holdout, methods)
-    curves = {k: np.sort(np.concatenate(v)) for k, v in pooled.items()}
+            progress('rephoto', len(views) + n_done + 1, total)
+    summary = _summarise(bag, o, frames, hold, per_holdout, methods)
+    summary['views'] = [{'frame': f, **n} for f, n in zip(frames, notes, strict=True)]
+    return _write_outputs(out, bag, summary, pooled, pooled_raw, timings)
+
+
+def _write_outputs(
+    out: Path,
+    bag: Path,
+    summary: dict,
+    pooled: dict[str, list[NDArray[np.float32]]],
+    pooled_raw: list[NDArray[np.float32]],
+    timings: dict[str, float],
+) -> dict:
+    """Curves into ``summary``; ``rephoto_curves.png``, ``rephoto_eval.json`` and ``.md`` (atomic)."""
+    curves = {k: np.sort(np.concatenate(v)) for k, v in pooled.items() if v}
     if pooled_raw:
         curves['ours@mvs (holes black)'] = np.sort(np.concatenate(pooled_raw))
     summary['curves'] = {k: _curve_points(e) for k, e in curves.items()}
     summary['timings_s'] = timings
+    from ibr_ros.jobs.process.output import json_default
+
     write_atomic(out / 'rephoto_curves.png', _curves_png(curves, bag))
-    write_atomic(out / 'rephoto_eval.json', json.dumps(summary, indent=2) + '\n')
+    write_atomic(out / 'rephoto_eval.json', json.dumps(summary, indent=2, default=json_default) + '\n')
     write_atomic(out / 'rephoto_eval.md', _markdown(summary))
     return summary
+
+
+def _evaluate_keyframes(bag: Path, out: Path, o: RephotoEvalOptions, progress: Progress | None) -> dict:
+    """Keyframes as ``ibr process`` chooses and registers them (module docstring: Keyframes)."""
+    from ibr_ros.jobs.process import ProcessOptions
+    from ibr_ros.jobs.process.frames import subsample
+    from ibr_ros.jobs.process.params import load_params, process_configs
+    from ibr_ros.jobs.process.refine import refine_all
+    from ibr_ros.jobs.process.sfm import register_keyframes
+
+    timings: dict[str, float] = {}
+    tick = time.perf_counter()
+    popts = ProcessOptions(sfm=o.sfm, gps=o.gps, params=o.params, views=0, max_keyframes=o.max_keyframes)
+    params = load_params(o.params)
+    cfg = process_configs(params, popts)
+    sub = subsample(bag, cfg, popts, progress)
+    timings['subsample'] = time.perf_counter() - tick
+    tick = time.perf_counter()
+    sfm_info: dict[str, object] | None = None
+    keyframes = sub.keyframes
+    if sub.sfm_why is not None:
+        keyframes, cfg, sfm_info = register_keyframes(sub, cfg, None, progress)
+    timings['sfm'] = time.perf_counter() - tick
+    every = o.holdout_every or DEFAULT_HOLDOUT['keyframes']
+    hold = holdout_indices(len(keyframes), every)
+    if not hold:
+        raise UserError(
+            f'{bag}: {len(keyframes)} keyframes, holding out every {every}th leaves none: hold out more '
+            'often (--holdout) or choose more keyframes (--max-keyframes, --params)'
+        )
+    held = set(hold)
+    kept = [k for i, k in enumerate(keyframes) if i not in held]
+    # ground truth of a synthetic bag, where its poses are used (SfM poses are in another frame)
+    gt_renderer = GroundTruthRenderer(bag) if sfm_info is None and (bag / 'synth.json').is_file() else None
+    out.mkdir(parents=True, exist_ok=True)
+    tick = time.perf_counter()
+    refine_info = refine_all(kept, cfg, progress)  # the held-out keyframes are nobody's neighbour
+    timings['refine'] = time.perf_counter() - tick
+    position = {k.stamp: i for i, k in enumerate(keyframes)}
+    model = [k for k in kept if k.depth is not None]
+    if not model:
+        raise UserError(f'{bag}: none of the {len(kept)} kept keyframes was refined: nothing to render from')
+    depths: dict[str, list[NDArray[np.float32]]] = {'fused': [np.asarray(k.depth, np.float32) for k in model]}
+    gts = {}
+    if gt_renderer is not None:
+        gts = {i: gt_renderer.render(keyframes[i].t_wc, keyframes[i].camera) for i in hold}
+        depths['gt'] = [
+            np.ascontiguousarray(gt_renderer.render(k.t_wc, k.camera).depth, np.float32) for k in model
+        ]
+    methods = [_BY_KEY[k] for k in o.methods if _BY_KEY[k].depth in depths]
+    if not methods:
+        raise UserError(
+            f'none of the methods {list(o.methods)} can be evaluated on keyframes: they need depth '
+            f'{sorted({_BY_KEY[k].depth for k in o.methods})}, here only {sorted(depths)}'
+        )
+    base = o.render or cfg.viewing.render
+    tick = time.perf_counter()
+    renderers = {
+        m.key: m.renderer(
+            [
+                SourceView(k.rgb, d, k.camera, k.t_wc, name=str(position[k.stamp]), stamp=k.stamp * 1e-9)
+                for k, d in zip(model, depths[m.depth], strict=True)
+            ],
+            base,
+        )
+        for m in methods
+    }
+    timings['render'], timings['score'] = time.perf_counter() - tick, 0.0
+    pooled: dict[str, list[NDArray[np.float32]]] = {m.key: [] for m in methods}
+    per_holdout = []
+    if progress is not None:
+        progress('holdouts', 0, len(hold))
+    for n_done, h in enumerate(hold):
+        k = keyframes[h]
+        gt_rgb = gts[h].rgb if h in gts else None
+        scores, shown, curves, _ = _render_holdout(k.rgb, gt_rgb, k.t_wc, k.camera, renderers, o, timings)
+        for key, c in curves.items():
+            pooled[key].append(c)
+        per_holdout.append({'frame': h, 'view': h, 'stamp': k.stamp, 'methods': scores})
+        if o.png:
+            _holdout_png(out / f'holdout_{h:03d}.png', k.rgb, shown, scores)
+        if progress is not None:
+            progress('holdouts', n_done + 1, len(hold))
+    frames = list(range(len(keyframes)))
+    summary = _summarise(bag, o, frames, hold, per_holdout, methods)
+    summary['options'].update(
+        {
+            'holdout_every': every,
+            'params': None if o.params is None else str(o.params),
+            'max_keyframes': o.max_keyframes,
+            'sfm': o.sfm,
+            'gps': o.gps,
+            'render': 'view_renderer parameters' if o.render is None else 'given',
+        }
+    )
+    for key in ('step', 'max_views', 'first'):
+        summary['options'].pop(key)
+    summary['stamps'] = [k.stamp for k in keyframes]
+    summary['holdout_stamps'] = [keyframes[h].stamp for h in hold]
+    summary['keyframe_selection'] = sub.selection
+    summary['bag_frames'] = {
+        'images': sub.counts['image'],
+        'complete': sub.counts['frames'],
+        'decisions': dict(sorted(sub.decisions.items())),
+        'stopped_at_max_keyframes': sub.stopped,
+    }
+    summary['registration'] = _registration(sub.sfm_why, sfm_info, len(sub.keyframes))
+    summary['refine'] = refine_info
+    not_refined = cast(dict[str, str], refine_info['not_refined'])
+    summary['views'] = []
+    for i, k in enumerate(keyframes):
+        note: dict[str, object] = {'frame': i, 'stamp': k.stamp, 'reason': k.reason, 'held_out': i in held}
+        note.update({'refined': k.depth is not None, 'neighbours': [int(s) for s in k.neighbours]})
+        if str(k.stamp) in not_refined:
+            note['skipped'] = not_refined[str(k.stamp)]
+        summary['views'].append(note)
+    unusable: dict[str, dict[str, str]] = {}
+    for key, r in renderers.items():
+        why = {r.views[i].name: r.skip_reason(i) for i in range(len(r.views))}
+        unusable[key] = {name: w for name, w in why.items() if w is not None}
+    summary['render'] = {'sources': len(model), 'unusable': unusable}
+    return _write_outputs(out, bag, summary, pooled, [], timings)
+
+
+def _registration(sfm_why: str | None, sfm: dict[str, object] | None, n: int) -> dict[str, object]:
+    """Where the poses come from and whether SfM saw the held-out photos, for the summary."""
+    if sfm is None:
+        return {
+            'poses': 'bag',
+            'sfm_saw_holdouts': False,
+            'note': "the bag's poses: no SfM; the held-out photos took part in nothing but their own scoring",
+        }
+    return {
+        'poses': 'sfm',
+        'sfm_saw_holdouts': True,
+        'note': (
+            f'SfM ({sfm_why}) registered all {n} keyframes together, the held-out ones included: SfM '
+            'saw every held-out photo (that is what gives it a pose); it took no part in any other '
+            "keyframe's MVS nor in the render set"
+        ),
+        'sfm': sfm,
+    }
 
 
 def _curve_points(e: NDArray[np.float32]) -> dict[str, list[float]]:
@@ -369,7 +626,7 @@ def _curve_points(e: NDArray[np.float32]) -> dict[str, list[float]]:
     }
 
 
-def _mean(values: list[float]) -> float:
+def _mean(values: list[float | None]) -> float:
     vals = [v for v in values if v is not None and np.isfinite(v)]
     return float(np.mean(vals)) if vals else float('nan')
 
@@ -379,15 +636,15 @@ def _summarise(
     o: RephotoEvalOptions,
     frames: list[int],
     hold: list[int],
-    notes: list[dict],
     per_holdout: list[dict],
     methods: list[Method],
 ) -> dict:
     table: dict[str, dict] = {}
     scalars: tuple[str, ...] = ('auc_main', 'tail', 'median', 'completeness', 'auc_unfilled', 'tail_unfilled')
-    scalars += ('auc_vs_gt_frame', 'tail_vs_gt_frame')
+    scalars += ('psnr', 'ssim', 'auc_vs_gt_frame', 'tail_vs_gt_frame')
     for m in methods:
         rows = [h['methods'][m.key] for h in per_holdout]
+        present = [k for k in scalars if any(k in r for r in rows)]
         entry: dict = {'depth': m.depth, 'renderer': m.name}
         entry['auc'] = {
             _window_key(p, s): _mean([r['auc'][_window_key(p, s)] for r in rows]) for p, s in o.windows
@@ -396,7 +653,7 @@ def _summarise(
             _window_key(p, s): float(np.sum([r['auc'][_window_key(p, s)] for r in rows]))
             for p, s in o.windows
         }
-        entry.update({k: _mean([r[k] for r in rows]) for k in scalars})
+        entry.update({k: _mean([r.get(k) for r in rows]) for k in present})
         entry['failed_renders'] = sum(r['reason'] is not None for r in rows)
         table[m.key] = entry
     bars = []
@@ -408,6 +665,7 @@ def _summarise(
             bars[-1]['holds'] = bool(va < vb)
     return {
         'bag': str(bag),
+        'views_from': resolve_views_from(bag, o.views_from),
         'options': {
             'step': o.step,
             'max_views': o.max_views,
@@ -419,7 +677,6 @@ def _summarise(
         },
         'frames': frames,
         'holdout_frames': [frames[h] for h in hold],
-        'views': [{'frame': f, **n} for f, n in zip(frames, notes, strict=True)],
         'methods': table,
         'bars': bars,
         'per_holdout': per_holdout,
@@ -521,7 +778,7 @@ def _curves_png(curves: dict[str, NDArray[np.float32]], bag: Path) -> bytes:
     return buf.getvalue()
 
 
-def _fmt(v: float, digits: int = 3) -> str:
+def _fmt(v: float | None, digits: int = 3) -> str:
     return f'{v:.{digits}f}' if v is not None and np.isfinite(v) else 'n/a'
 
 
@@ -529,20 +786,39 @@ def _markdown(s: dict) -> str:
     t = s['methods']
     n = len(s['holdout_frames'])
     windows = [tuple(w) for w in s['options']['windows']]
-    lines = [
-        f'# Rephotography evaluation: `{s["bag"]}`',
+    holes = (
+        'render holes filled by image inpainting before scoring'
+        if s['options']['fill_holes']
+        else 'render holes scored as rendered'
+    )
+    lines = [f'# Rephotography evaluation: `{s["bag"]}`', '']
+    if s.get('views_from') == 'keyframes':
+        lines += _keyframes_intro(s, holes)
+    else:
+        lines += [
+            f'{len(s["frames"])} views (frames {s["frames"][0]}..{s["frames"][-1]}, every '
+            f'{s["options"]["step"]}th); held out every {s["options"]["holdout_every"]}th view: frames '
+            f'{", ".join(map(str, s["holdout_frames"]))}, each rendered from all other views (leave-one-out) '
+            f'and compared with its photo. Errors: shiftable L1 in 0..255 colour units; {holes}.',
+            '',
+        ]
+    gt_frame = any('auc_vs_gt_frame' in v for v in t.values())
+    head = '| method | AUC | worst 1 % | PSNR (dB) | SSIM | completeness | median | AUC holes black | '
+    head += 'worst 1 % holes black |'
+    lines += [
+        '## Main window 7x7 +-2 (mean over holdouts)',
         '',
-        f'{len(s["frames"])} views (frames {s["frames"][0]}..{s["frames"][-1]}, every '
-        f'{s["options"]["step"]}th); held out every {s["options"]["holdout_every"]}th view: frames '
-        f'{", ".join(map(str, s["holdout_frames"]))}, each rendered from all other views (leave-one-out) '
-        'and compared with its photo. Errors: shiftable L1 in 0..255 colour units; render holes '
-        + (
-            'filled by image inpainting before scoring.'
-            if s['options']['fill_holes']
-            else 'scored as rendered.'
-        ),
-        '',
+        head + (' AUC vs GT frame | worst 1 % vs GT frame |' if gt_frame else ''),
+        '| --- ' * (9 + 2 * gt_frame) + '|',
     ]
+    for k, v in t.items():
+        lines.append(
+            f'| {k} | {_fmt(v["auc_main"])} | {_fmt(v["tail"], 2)} | {_fmt(v.get("psnr"), 2)} | '
+            f'{_fmt(v.get("ssim"))} | {_fmt(v["completeness"], 4)} | {_fmt(v["median"])} | '
+            f'{_fmt(v["auc_unfilled"])} | {_fmt(v["tail_unfilled"], 2)} |'
+            + (f' {_fmt(v["auc_vs_gt_frame"])} | {_fmt(v["tail_vs_gt_frame"], 2)} |' if gt_frame else '')
+        )
+    lines.append('')
 
     def table3(title: str, keys: list[str], labels: list[str]) -> None:
         keys_here = [k for k in keys if k in t]
@@ -557,26 +833,21 @@ def _markdown(s: dict) -> str:
             lines.append(f'| {p}x{p} | +-{sh} | {cells} |')
         lines.append('')
 
-    table3(
-        'Table 3 analogue: depth sources (our renderer)',
-        [f'ours@{d}' for d in DEPTH_SOURCES],
-        [DEPTH_LABELS[d] for d in DEPTH_SOURCES],
-    )
-    rkeys = [f'{r}@{d}' for d in ('fused', 'gt') for r in ('ours', 'paper', 'ulr', 'splat')]
-    table3('Renderers on fused and on GT depth', rkeys, rkeys)
-    lines += [
-        '## Main window 7x7 +-2 (mean over holdouts)',
-        '',
-        '| method | AUC | tail 99-100 % | median | completeness | AUC holes black | tail holes black | '
-        'AUC vs GT frame | tail vs GT frame |',
-        '| --- | --- | --- | --- | --- | --- | --- | --- | --- |',
-    ]
-    for k, v in t.items():
-        lines.append(
-            f'| {k} | {_fmt(v["auc_main"])} | {_fmt(v["tail"], 2)} | {_fmt(v["median"])} | '
-            f'{_fmt(v["completeness"], 4)} | {_fmt(v["auc_unfilled"])} | {_fmt(v["tail_unfilled"], 2)} | '
-            f'{_fmt(v["auc_vs_gt_frame"])} | {_fmt(v["tail_vs_gt_frame"], 2)} |'
+    sources = [d for d in DEPTH_SOURCES if f'ours@{d}' in t]
+    if len(sources) > 1:
+        table3(
+            'Table 3 analogue: depth sources (our renderer)',
+            [f'ours@{d}' for d in DEPTH_SOURCES],
+            [DEPTH_LABELS[d] for d in DEPTH_SOURCES],
         )
+    rkeys = [f'{r}@{d}' for d in ('fused', 'gt') for r in ('ours', 'paper', 'ulr', 'splat')]
+    table3(
+        'Table 3 analogue: renderers'
+        + (' on fused and on GT depth' if 'ours@gt' in t else ' on fused depth'),
+        rkeys,
+        rkeys,
+    )
+    lines += _per_holdout_lines(s)
     if s['bars']:
         lines += ['', '## Quality bars (a < b)', '', '| bar | a | b | holds |', '| --- | --- | --- | --- |']
         for b in s['bars']:
@@ -591,3 +862,74 @@ def _markdown(s: dict) -> str:
             f'{len(skipped)} view(s) without refined depth: frames {[v["frame"] for v in skipped]}.',
         ]
     return '\n'.join(lines) + '\n'
+
+
+def _keyframes_intro(s: dict, holes: str) -> list[str]:
+    """What was evaluated on keyframes: selection, registration (did SfM see the holdouts), holdouts."""
+    from ibr_ros.jobs.process.output import selection_line
+
+    reg, bf, o = s['registration'], s['bag_frames'], s['options']
+    n, hold = len(s['frames']), s['holdout_frames']
+    refined = sum(v['refined'] for v in s['views'])
+    lines = [
+        f'- keyframes: {n}, chosen as `ibr process` does ({selection_line(s["keyframe_selection"])}) from '
+        f'{bf["complete"]} frames (decisions {bf["decisions"]})'
+        + (f'; stopped at --max-keyframes {o["max_keyframes"]}' if bf['stopped_at_max_keyframes'] else ''),
+    ]
+    if reg['poses'] == 'sfm':
+        sfm = reg['sfm']
+        gps = sfm['gps']
+        align = 'no GPS alignment'
+        if gps is not None and gps['alignment_rms_m'] is not None:
+            align = (
+                f'GPS alignment RMS {_fmt(gps["alignment_rms_m"], 2)} m over {gps["alignment_inliers"]}/'
+                f'{gps["keyframes_with_gps"]} inliers'
+            )
+        lines.append(
+            f'- poses: SfM, {sfm["registered"]}/{sfm["keyframes"]} keyframes registered, frame '
+            f'`{sfm["frame_id"]}` (unit {sfm["unit"]}), reprojection error '
+            f'{_fmt(sfm["mean_reprojection_error_px"], 2)} px, {align}'
+        )
+        lines.append(f'- **SfM saw the held-out photos: yes.** {reg["note"]}.')
+    else:
+        lines.append("- poses: the bag's; SfM saw the held-out photos: no (no SfM).")
+    lines += [
+        f'- held out every {o["holdout_every"]}th keyframe: {", ".join(map(str, hold))} (of 0..{n - 1}); '
+        f'the other {n - len(hold)} were refined without them (MVS neighbours only among themselves): '
+        f'{refined}/{n - len(hold)} refined; each held-out photo rendered at its registered pose from the '
+        f'{s["render"]["sources"]} refined ones and compared with its own photo',
+        f'- errors: shiftable L1 in 0..255 colour units, PSNR and SSIM against the photo; {holes}; '
+        f'renderer settings: {o["render"]}',
+    ]
+    warnings = list(s['refine']['warnings'])
+    warnings += [f'keyframe {st} ns not refined: {why}' for st, why in s['refine']['not_refined'].items()]
+    if reg['poses'] == 'sfm':
+        warnings += [f'keyframe {st} ns dropped: {why}' for st, why in reg['sfm']['dropped'].items()]
+    warnings += [
+        f'{key}: source {name} unusable: {why}'
+        for key, u in s['render']['unusable'].items()
+        for name, why in u.items()
+    ]
+    if warnings:
+        lines += ['- warnings:', *(f'  - {w}' for w in warnings)]
+    return [*lines, '']
+
+
+def _per_holdout_lines(s: dict) -> list[str]:
+    """Per held-out view: AUC / worst 1 % / PSNR of each method (7x7 +-2)."""
+    keys = list(s['methods'])
+    lines = [
+        '## Per held-out view (7x7 +-2: AUC / worst 1 % / PSNR dB / completeness)',
+        '',
+        '| view | ' + ' | '.join(keys) + ' |',
+        '| --- ' * (1 + len(keys)) + '|',
+    ]
+    for h in s['per_holdout']:
+        cells = []
+        for k in keys:
+            r = h['methods'][k]
+            cell = f'{_fmt(r["auc_main"], 2)} / {_fmt(r["tail"], 1)} / {_fmt(r["psnr"], 1)}'
+            cell += f' / {_fmt(r["completeness"], 2)}' + (f' ({r["reason"]})' if r['reason'] else '')
+            cells.append(cell)
+        lines.append(f'| {h["frame"]} | ' + ' | '.join(cells) + ' |')
+    return [*lines, '']

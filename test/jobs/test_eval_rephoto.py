@@ -170,6 +170,8 @@ def test_bad_options_are_user_errors(scenes, tmp_path, capsys, extra, message):
     assert message in capsys.readouterr().err
 
 
-def test_not_a_synthetic_bag_is_a_user_error(repo, tmp_path, capsys):
-    assert main(['eval', 'rephoto', str(repo / 'bags' / 'brighton_beach'), '--out', str(tmp_path)]) == 2
+def test_frames_of_a_real_bag_is_a_user_error(repo, tmp_path, capsys):
+    """Frames need a synthetic bag (real bags are evaluated on keyframes: test_eval_rephoto_real)."""
+    bag = str(repo / 'bags' / 'brighton_beach')
+    assert main(['eval', 'rephoto', bag, '--views-from', 'frames', '--out', str(tmp_path)]) == 2
     assert 'synth.json' in capsys.readouterr().err

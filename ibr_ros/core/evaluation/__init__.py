@@ -1,6 +1,6 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
-"""Evaluation only, not on the product path: rephotography error (shiftable L1) and the renderer
+"""Evaluation only, not on the product path: rephotography error (shiftable L1, PSNR, SSIM) and the renderer
 baselines the product is measured against (point splat, ULR).
 """
 
@@ -10,6 +10,7 @@ from ibr_ros.core.evaluation.baselines import (
     SplatRenderer,
     UlrRenderer,
 )
+from ibr_ros.core.evaluation.metrics import psnr, ssim
 from ibr_ros.core.evaluation.rephoto import (
     RephotoScore,
     error_curve,
@@ -22,6 +23,8 @@ __all__ = [
     'SplatRenderer',
     'UlrRenderer',
     'error_curve',
+    'psnr',
     'score',
     'shiftable_l1',
+    'ssim',
 ]

@@ -73,7 +73,7 @@ def write_bag(
     return {name: counts[name] for name, _ in OUT_TOPICS.values()}
 
 
-def _selection_line(sel: dict) -> str:
+def selection_line(sel: dict) -> str:
     """How the keyframes were chosen, for ``summary.md``."""
     if sel['method'] == 'interval':
         return f'without poses, the sharpest frame per {sel["interval_s"]:g} s window'
@@ -107,7 +107,7 @@ def summary_markdown(s: dict) -> str:
         f'decisions {s["frames"]["decisions"]}; bad or incomplete {s["frames"]["bad"]}',
         f'- keyframes: {s["keyframes"]}, refined: {s["refined"]}; novel views: {s["views_answered"]}/'
         f'{s["views_requested"]} answered',
-        f'- keyframe selection: {_selection_line(s["keyframe_selection"])}',
+        f'- keyframe selection: {selection_line(s["keyframe_selection"])}',
         f'- output bag: `{s["output"]["bag"]}` ({sum(s["output"]["topics"].values())} messages)',
     ]
     if (sfm := s.get('sfm')) is not None:

@@ -22,7 +22,13 @@ LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the spli
 def refine_all(
     keyframes: list[Keyframe], cfg: ProcessConfigs, progress: Progress | None
 ) -> dict[str, object]:
-    """MVS + refinement of every keyframe, oldest first, with the whole flight known."""
+    """MVS + refinement of every keyframe, oldest first, with the whole flight known.
+
+    Only ``keyframes`` take part: a keyframe left out of the list is nobody's MVS neighbour (``ibr
+    eval rephoto`` leaves its held-out keyframes out this way). Sets each refined keyframe's
+    ``depth`` and ``neighbours``; returns ``attempts``, ``not_refined`` (stamp -> why) and
+    ``warnings`` (the scheduler's, also logged).
+    """
     by_stamp = {k.stamp: k for k in keyframes}
     scheduler = RefineScheduler(cfg.schedule)
     for k in keyframes:
@@ -32,6 +38,7 @@ def refine_all(
     except MonoModelError as exc:
         raise UserError(f'depth_refiner mono_model/sky_model: {exc}') from exc
     failures: dict[int, str] = {}
+    warnings: list[str] = []
     attempts = 0
     if progress is not None:
         progress('keyframes', 0, len(keyframes))
@@ -42,6 +49,7 @@ def refine_all(
             raise UserError(f'cannot choose MVS neighbours: {exc}') from exc
         for w in scheduler.pop_warnings():
             LOG.warning(w)
+            warnings.append(w)
         if job is None:
             break
         attempts += 1
@@ -65,4 +73,8 @@ def refine_all(
             progress('keyframes', len(scheduler.refined()), len(keyframes))
     for s in scheduler.unrefined():
         failures.setdefault(s, 'no neighbour with enough overlap and parallax')
-    return {'attempts': attempts, 'not_refined': {str(s): why for s, why in sorted(failures.items())}}
+    return {
+        'attempts': attempts,
+        'not_refined': {str(s): why for s, why in sorted(failures.items())},
+        'warnings': warnings,
+    }
