@@ -266,6 +266,12 @@ def test_sfm_poseless_bag_registered_and_refined(sfm_processed, flight):
     assert (sfm['frame'], sfm['frame_id'], sfm['metric'], sfm['gps']) == ('sfm', 'sfm', False, None)
     assert sfm['mean_reprojection_error_px'] < 1.0
     assert summary['views_answered'] == 3
+    first = (sfm_processed / 'summary.md').read_text().split('## Details')[0]  # what a user must know first
+    assert f'**registered**: {sfm["registered"]}/6 keyframes' in first
+    assert '**GPS alignment**: none' in first
+    assert f'**refined**: {summary["refined"]}/{summary["keyframes"]} keyframes' in first
+    assert '**answered**: 3/3 novel views' in first
+    assert '**warnings**' in first
     msgs = _messages(sfm_processed / 'bag')
     n = summary['keyframes']
     per_keyframe = ('image', 'camera_info', 'pose', 'depth', 'depth_info')

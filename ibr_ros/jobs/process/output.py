@@ -101,6 +101,10 @@ def summary_markdown(s: dict) -> str:
     lines = [
         f'# ibr process on `{s["bag"]}`',
         '',
+        *_first_lines(s),
+        '',
+        '## Details',
+        '',
         f'- input: {tp["image"]} ({tp["image_type"]}), {tp["camera_info"]}, {pose}'
         + (f', {tp["navsat"]} (NavSatFix)' if tp.get('navsat') else ''),
         f'- frames: {s["frames"]["complete"]} complete of {s["frames"]["images"]} images; '
@@ -159,6 +163,50 @@ def summary_markdown(s: dict) -> str:
             f'{f(gt["rephoto_completeness_mean"], ".2f")}',
         ]
     return '\n'.join(lines) + '\n'
+
+
+def _first_lines(s: dict) -> list[str]:
+    """What a user must know first: registered, GPS alignment, refined, answered, and the warnings."""
+    n, fr = s['keyframes'], s['frames']
+    sfm = s.get('sfm')
+    lines = [f'- **keyframes**: {n} of {fr["complete"]} frames (decisions {fr["decisions"]})']
+    if sfm is not None:
+        lines.append(
+            f'- **registered**: {sfm["registered"]}/{sfm["keyframes"]} keyframes (SfM, {sfm["why"]}; '
+            f'frame `{sfm["frame_id"]}`)'
+        )
+        gps = sfm['gps']
+        if gps is None:
+            lines.append('- **GPS alignment**: none (no NavSatFix topic or --no-gps): frame `sfm`, no metres')
+        elif gps['alignment_rms_m'] is None:
+            lines.append(
+                f'- **GPS alignment**: failed ({gps["keyframes_with_gps"]} keyframes with GPS): frame `sfm`'
+            )
+        else:
+            lines.append(
+                f'- **GPS alignment**: {gps["alignment_inliers"]}/{gps["keyframes_with_gps"]} keyframes '
+                f'inliers, RMS {gps["alignment_rms_m"]:.2f} m, max {gps["alignment_max_m"]:.2f} m'
+            )
+    else:
+        lines.append(f"- **poses**: the bag's ({s['topics']['pose']}) for all {n} keyframes")
+    lines += [
+        f'- **refined**: {s["refined"]}/{n} keyframes',
+        f'- **answered**: {s["views_answered"]}/{s["views_requested"]} novel views',
+    ]
+    warnings = []
+    if sfm is not None:
+        warnings += [f'keyframe {st} ns: {why}' for st, why in sfm['dropped'].items()]
+    refine = s.get('refine') or {}
+    warnings += [f'keyframe {st} ns not refined: {why}' for st, why in refine.get('not_refined', {}).items()]
+    warnings += list(refine.get('warnings', []))
+    unusable = (s.get('render') or {}).get('unusable_views', {})
+    warnings += [f'keyframe {st} ns not rendered from: {why}' for st, why in unusable.items()]
+    warnings += [f'novel view {st} ns not answered: {why}' for st, why in s.get('unanswered', {}).items()]
+    if warnings:
+        lines += [f'- **warnings** ({len(warnings)}):', *(f'  - {w}' for w in warnings)]
+    else:
+        lines.append('- **warnings**: none')
+    return lines
 
 
 def json_default(value: object) -> object:
