@@ -866,7 +866,7 @@ def _markdown(s: dict) -> str:
 
 def _keyframes_intro(s: dict, holes: str) -> list[str]:
     """What was evaluated on keyframes: selection, registration (did SfM see the holdouts), holdouts."""
-    from ibr_ros.jobs.process.output import selection_line
+    from ibr_ros.jobs.process.output import refine_warnings, selection_line
 
     reg, bf, o = s['registration'], s['bag_frames'], s['options']
     n, hold = len(s['frames']), s['holdout_frames']
@@ -901,8 +901,7 @@ def _keyframes_intro(s: dict, holes: str) -> list[str]:
         f'- errors: shiftable L1 in 0..255 colour units, PSNR and SSIM against the photo; {holes}; '
         f'renderer settings: {o["render"]}',
     ]
-    warnings = list(s['refine']['warnings'])
-    warnings += [f'keyframe {st} ns not refined: {why}' for st, why in s['refine']['not_refined'].items()]
+    warnings = refine_warnings(s['refine'])
     if reg['poses'] == 'sfm':
         warnings += [f'keyframe {st} ns dropped: {why}' for st, why in reg['sfm']['dropped'].items()]
     warnings += [

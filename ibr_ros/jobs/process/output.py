@@ -165,6 +165,14 @@ def summary_markdown(s: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def refine_warnings(refine: dict) -> list[str]:
+    """Per-keyframe warnings of :func:`~ibr_ros.jobs.process.refine.refine_all`'s result: every keyframe
+    not refined, and the scheduler's warnings but those about a keyframe already listed."""
+    not_refined = refine.get('not_refined', {})
+    out = [f'keyframe {st} ns not refined: {why}' for st, why in not_refined.items()]
+    return out + [w for w in refine.get('warnings', []) if not any(f'{st} ns' in w for st in not_refined)]
+
+
 def _first_lines(s: dict) -> list[str]:
     """What a user must know first: registered, GPS alignment, refined, answered, and the warnings."""
     n, fr = s['keyframes'], s['frames']
@@ -196,9 +204,7 @@ def _first_lines(s: dict) -> list[str]:
     warnings = []
     if sfm is not None:
         warnings += [f'keyframe {st} ns: {why}' for st, why in sfm['dropped'].items()]
-    refine = s.get('refine') or {}
-    warnings += [f'keyframe {st} ns not refined: {why}' for st, why in refine.get('not_refined', {}).items()]
-    warnings += list(refine.get('warnings', []))
+    warnings += refine_warnings(s.get('refine') or {})
     unusable = (s.get('render') or {}).get('unusable_views', {})
     warnings += [f'keyframe {st} ns not rendered from: {why}' for st, why in unusable.items()]
     warnings += [f'novel view {st} ns not answered: {why}' for st, why in s.get('unanswered', {}).items()]
