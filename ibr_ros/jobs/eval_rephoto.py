@@ -896,7 +896,7 @@ def _keyframes_intro(s: dict, holes: str) -> list[str]:
     lines += [
         f'- held out every {o["holdout_every"]}th keyframe: {", ".join(map(str, hold))} (of 0..{n - 1}); '
         f'the other {n - len(hold)} were refined without them (MVS neighbours only among themselves): '
-        f'{refined}/{n - len(hold)} refined; each held-out photo rendered at its registered pose from the '
+        f'{refined}/{n - len(hold)} refined; each held-out photo rendered at its pose from the '
         f'{s["render"]["sources"]} refined ones and compared with its own photo',
         f'- errors: shiftable L1 in 0..255 colour units, PSNR and SSIM against the photo; {holes}; '
         f'renderer settings: {o["render"]}',
