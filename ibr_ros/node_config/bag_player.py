@@ -17,13 +17,13 @@ __all__ = ['BAG_PLAYER', 'BagPlayerConfig']
 class BagPlayerConfig:
     """What the bag_player node runs with (see :data:`BAG_PLAYER` for each parameter).
 
-    ``bag`` is '' when not given (the node refuses to start). ``clock_period_s`` = 1 / ``clock_rate_hz``;
+    ``bag`` is '' when not given (the node refuses to start); ``playback`` holds ``rate``,
+    ``flow_window`` and the QoS, remap and topic choices. ``clock_period_s`` = 1 / ``clock_rate_hz``;
     ``linger_s`` -1 = until shut down; ``wait_timeout_s``, ``progress_s`` and ``duration_s`` 0 = off.
     """
 
     bag: str
     playback: PlaybackPolicy
-    rate: float
     loop: bool
     start_offset_s: float
     duration_s: float
@@ -32,37 +32,29 @@ class BagPlayerConfig:
     wait_for_subscribers: int
     wait_timeout_s: float
     wait_topics: tuple[str, ...]
-    flow_window: int
     linger_s: float
     ack_timeout_s: float
     progress_s: float
 
 
-def _strings(v: Values, name: str) -> tuple[str, ...]:
-    return tuple(v.texts(name))
-
-
 def _build(v: Values) -> BagPlayerConfig:
     try:
-        remap = parse_remaps(_strings(v, 'remap'))
-        overrides = parse_topic_qos(_strings(v, 'topic_qos'))
+        remap = parse_remaps(v.texts('remap'))
+        overrides = parse_topic_qos(v.texts('topic_qos'))
     except ValueError as exc:  # the text names the parameter and the entry
         raise UserError(str(exc)) from exc
-    rate = v.number('rate')
-    window = v.integer('flow_window')
     return BagPlayerConfig(
         bag=v.text('bag'),
         playback=PlaybackPolicy(
-            topics=_strings(v, 'topics'),
+            topics=tuple(v.texts('topics')),
             remap=remap,
             topic_qos=overrides,
             qos_depth=v.integer('qos_depth'),
             max_durable_depth=v.integer('max_durable_depth'),
             use_recorded_qos=v.flag('use_recorded_qos'),
-            rate=rate,
-            flow_window=window,
+            rate=v.number('rate'),
+            flow_window=v.integer('flow_window'),
         ),
-        rate=rate,
         loop=v.flag('loop'),
         start_offset_s=v.number('start_offset'),
         duration_s=v.number('duration'),
@@ -70,8 +62,7 @@ def _build(v: Values) -> BagPlayerConfig:
         clock_period_s=1.0 / v.number('clock_rate_hz'),
         wait_for_subscribers=v.integer('wait_for_subscribers'),
         wait_timeout_s=v.number('wait_timeout_s'),
-        wait_topics=_strings(v, 'wait_topics'),
-        flow_window=window,
+        wait_topics=tuple(v.texts('wait_topics')),
         linger_s=v.number('linger_s'),
         ack_timeout_s=v.number('ack_timeout_s'),
         progress_s=v.number('progress_s'),

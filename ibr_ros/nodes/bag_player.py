@@ -91,7 +91,7 @@ class BagPlayer(Node):
             raise UserError('parameter bag is required (-p bag:=PATH)')
         self.cfg = cfg
         self.bag_path = cfg.bag
-        self.rate, self.loop, self.window = cfg.rate, cfg.loop, cfg.flow_window
+        self.rate, self.loop, self.window = cfg.playback.rate, cfg.loop, cfg.playback.flow_window
         self.linger, self.ack_timeout, self.progress_s = cfg.linger_s, cfg.ack_timeout_s, cfg.progress_s
         self.wait_for, self.wait_timeout = cfg.wait_for_subscribers, cfg.wait_timeout_s
         self.clock_period = cfg.clock_period_s
