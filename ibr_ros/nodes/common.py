@@ -45,7 +45,6 @@ __all__ = [
     'EXIT_BAD_CONFIG',
     'BadInput',
     'StampAssembler',
-    'declare',
     'declare_table',
     'input_qos',
     'latched_qos',
@@ -105,27 +104,6 @@ def input_qos(publishers: Sequence[TopicEndpointInfo]) -> tuple[QoSProfile, str]
 def reliable_qos(depth: int = 10) -> QoSProfile:
     """Queries and replies: reliable, volatile."""
     return QoSProfile(depth=depth, reliability=QoSReliabilityPolicy.RELIABLE)
-
-
-def declare(
-    node: Node,
-    name: str,
-    default: object,
-    description: str,
-    *,
-    read_only: bool = True,
-    limits: tuple[float, float] | None = None,
-) -> Any:
-    """Declare a parameter with a descriptor (a numeric range when ``limits`` is given); return its value
-    (of the default's type: rclpy refuses another)."""
-    desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
-    if limits is not None and isinstance(default, bool):
-        raise ValueError(f'parameter {name}: limits make no sense for a bool')
-    if limits is not None and isinstance(default, int):
-        desc.integer_range = [IntegerRange(from_value=int(limits[0]), to_value=int(limits[1]), step=0)]
-    elif limits is not None and isinstance(default, float):
-        desc.floating_point_range = [FloatingPointRange(from_value=limits[0], to_value=limits[1], step=0.0)]
-    return node.declare_parameter(name, default, desc).value
 
 
 def declare_table(node: Node, table: ParamTable[Any]) -> Values:

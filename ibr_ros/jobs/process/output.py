@@ -109,8 +109,6 @@ def summary_markdown(s: dict) -> str:
         + (f', {tp["navsat"]} (NavSatFix)' if tp.get('navsat') else ''),
         f'- frames: {s["frames"]["complete"]} complete of {s["frames"]["images"]} images; '
         f'decisions {s["frames"]["decisions"]}; bad or incomplete {s["frames"]["bad"]}',
-        f'- keyframes: {s["keyframes"]}, refined: {s["refined"]}; novel views: {s["views_answered"]}/'
-        f'{s["views_requested"]} answered',
         f'- keyframe selection: {selection_line(s["keyframe_selection"])}',
         f'- output bag: `{s["output"]["bag"]}` ({sum(s["output"]["topics"].values())} messages)',
     ]
