@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import textwrap
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from ibr_ros.errors import UserError
@@ -179,7 +179,6 @@ class ParamTable(Generic[C]):
     build: Callable[[Values], C]
     subscribes: tuple[Topic, ...] = ()
     publishes: tuple[Topic, ...] = ()
-    services: tuple[Topic, ...] = field(default=())
 
     def __post_init__(self) -> None:
         names = [p.name for p in self.params]
@@ -191,10 +190,6 @@ class ParamTable(Generic[C]):
             if p.name == name:
                 return p
         raise KeyError(name)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.params)
 
     def defaults(self) -> Values:
         """Every parameter's default (lists copied)."""
@@ -240,7 +235,6 @@ class ParamTable(Generic[C]):
         for title, topics in (
             ('Subscribed topics', self.subscribes),
             ('Published topics', self.publishes),
-            ('Services', self.services),
         ):
             if not topics:
                 continue
