@@ -107,10 +107,8 @@ class DepthRefinerNode(Node):
         if cfg.warmup:
             seconds = warm_up_refiner(cfg.mvs, self.refiner)
             self.get_logger().info(f'warm-up MVS + refinement in {seconds:.2f} s')
-        # The lease starts now, after the warm-up (tens of seconds when the kernels are not cached yet).
-        self.members = ShardMembership(
-            self.num_workers, self.worker_index, cfg.worker_lease_s, time.monotonic()
-        )
+        # The lease of workers never heard from starts with the first keyframe message, not at start-up.
+        self.members = ShardMembership(self.num_workers, self.worker_index, cfg.worker_lease_s)
         self._live = self.members.live(time.monotonic())
         self._worker = threading.Thread(target=self._work, name='depth_refiner_worker', daemon=True)
         self._worker.start()
@@ -216,6 +214,7 @@ class DepthRefinerNode(Node):
 
     # -- input ----------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: object) -> None:
+        self.members.data_arrived(time.monotonic())
         with self._lock:
             if stamp in self.schedule or stamp in self._sfm_views:
                 return  # a keyframe already here, again (a mirror's copy, a late duplicate)

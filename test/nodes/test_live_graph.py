@@ -91,8 +91,11 @@ def test_flight_status_round_trip_and_errors():
 
 
 def test_shard_membership_takes_over_dead_workers():
-    m = ShardMembership(3, 0, lease_s=3.0, now=100.0)
-    assert m.live(101.0) == (0, 1, 2)  # never heard of yet: presumed alive at start-up
+    m = ShardMembership(3, 0, lease_s=3.0)
+    assert m.live(500.0) == (0, 1, 2)  # no keyframe yet: discovery may not have matched anyone
+    m.data_arrived(100.0)  # the first keyframe message starts the grace lease
+    m.data_arrived(100.5)  # (later ones do not move it)
+    assert m.live(101.0) == (0, 1, 2)  # never heard of yet: presumed alive
     assert not m.synced(101.0)  # ... so this worker waits to hear what they refined
     m.heard(1, 102.0)
     assert not m.synced(102.5)

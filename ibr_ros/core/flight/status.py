@@ -132,8 +132,10 @@ class ShardMembership:
     """Live refiner workers and the owner of each keyframe.
 
     A worker is alive while its heartbeats arrive within ``lease_s`` of each other (this worker always
-    is). A worker never heard from counts as alive for the first ``lease_s`` after this one started,
-    so that workers starting together do not take each other's keyframes. A keyframe belongs to its
+    is). A worker never heard from counts as alive until ``lease_s`` after the first keyframe message
+    reached this one (:meth:`data_arrived`): data arriving means discovery has matched this worker with
+    the graph, so a live worker's heartbeat is due by then too (under load discovery takes seconds,
+    and a lease counted from start-up would declare a live worker dead before its first heartbeat). A keyframe belongs to its
     :func:`shard_of` worker while that one is alive, else to one of the live
     workers, chosen by the same hash over their sorted indices (every worker with the same view of
     who is alive picks the same one). :meth:`synced`: every worker presumed alive has been heard from
@@ -141,7 +143,7 @@ class ShardMembership:
     what is done before it refines anything. Times are seconds of one monotonic clock.
     """
 
-    def __init__(self, num_workers: int, worker_index: int, lease_s: float, now: float) -> None:
+    def __init__(self, num_workers: int, worker_index: int, lease_s: float) -> None:
         if not 0 <= worker_index < num_workers:
             raise ValueError(f'worker_index must be in 0..{num_workers - 1}, got {worker_index}')
         if lease_s <= 0:
@@ -149,8 +151,13 @@ class ShardMembership:
         self.num_workers = num_workers
         self.worker_index = worker_index
         self.lease_s = lease_s
-        self.started = now
+        self.joined: float | None = None  # when the first keyframe message arrived
         self._seen: dict[int, float] = {}
+
+    def data_arrived(self, now: float) -> None:
+        """A keyframe message reached this worker at ``now`` (the first one starts the grace lease)."""
+        if self.joined is None:
+            self.joined = now
 
     def heard(self, worker: int, now: float) -> bool:
         """A heartbeat of ``worker`` at ``now``; True when ``worker`` was not alive before it."""
@@ -165,12 +172,12 @@ class ShardMembership:
             return True
         seen = self._seen.get(worker)
         if seen is None:
-            return now - self.started < self.lease_s
+            return self.joined is None or now - self.joined < self.lease_s
         return now - seen < self.lease_s
 
     def synced(self, now: float) -> bool:
         """Whether every other live worker has been heard from (a worker never heard counts as live
-        only during the first lease)."""
+        until the grace lease after the first keyframe message has passed)."""
         return all(w in self._seen for w in self.live(now) if w != self.worker_index)
 
     def live(self, now: float) -> tuple[int, ...]:
