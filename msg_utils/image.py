@@ -201,6 +201,28 @@ def depth_m_to_image(depth_m: ArrayLike, header: Any = None, *, flavor: Flavor =
     return numpy_to_image(d, '32FC1', header, flavor=flavor)
 
 
+def confidence_to_image(confidence: ArrayLike, header: Any = None, *, flavor: Flavor = 'rclpy') -> Any:
+    """``32FC1`` Image of an HxW depth confidence in [0, 1] (0 where the depth is unknown).
+
+    ValueError (MessageError) naming the value when it is not finite or outside [0, 1].
+    """
+    c = np.asarray(confidence, dtype=np.float32)
+    if c.ndim != 2:
+        raise MessageError(f'confidence must be HxW, got shape {c.shape}')
+    if c.size and not (np.isfinite(c).all() and c.min() >= 0.0 and c.max() <= 1.0):
+        bad = c[~(np.isfinite(c) & (c >= 0) & (c <= 1))][0]
+        raise MessageError(f'confidence must be finite and in [0, 1], got {float(bad)!r}')
+    return numpy_to_image(c, '32FC1', header, flavor=flavor)
+
+
+def image_to_confidence(msg: Any) -> NDArray[np.float32]:
+    """HxW float32 confidence in [0, 1] of a ``32FC1`` Image (NaN becomes 0; values are clipped)."""
+    if msg.encoding != '32FC1':
+        raise MessageError(f'Image.encoding {msg.encoding!r}: a depth confidence is 32FC1')
+    c = image_to_numpy(msg)
+    return np.clip(np.nan_to_num(c, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+
+
 def depth_image_to_m(msg: Any) -> NDArray[np.float32]:
     """HxW float32 metres (0 = unknown, +inf = far) of a ``16UC1`` (mm) or ``32FC1`` (m) Image.
 

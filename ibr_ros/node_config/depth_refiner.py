@@ -315,8 +315,8 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
         Topic(
             'keyframes/depth',
             'sensor_msgs/Image',
-            "other workers' depth: a keyframe with published depth is not refined here, and is "
-            'mirrored once (with `mirror_model`)',
+            "other workers' depth (and keyframes/depth/camera_info, keyframes/depth/confidence): a "
+            'keyframe with published depth is not refined here, and is mirrored once (with `mirror_model`)',
             _MODEL,
         ),
         Topic(
@@ -330,7 +330,15 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
         Topic(
             'keyframes/depth',
             'sensor_msgs/Image',
-            "refined depth, 32FC1 metres (REP-118: NaN unknown); the keyframe's stamp",
+            "refined depth, 32FC1 metres (REP-118: NaN unknown, +inf sky); the keyframe's stamp",
+            _MODEL,
+        ),
+        Topic(
+            'keyframes/depth/confidence',
+            'sensor_msgs/Image',
+            'per-pixel confidence of the depth, 32FC1 in [0, 1] (>= 0.5: MVS depth confirmed by other '
+            'views; below: filled from MVS along the image MST and the monocular depth; 0: unknown); '
+            "published just before the depth, the keyframe's stamp",
             _MODEL,
         ),
         Topic(

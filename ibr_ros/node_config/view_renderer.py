@@ -32,7 +32,8 @@ _RENDER = (
         'split superpixels at depth steps above this (log depth, 0.02 = 2 %), 0 = off',
         (0.0, 10.0),
         comment='Additions to the paper renderer (0 = off). The paper exactly: blend paper, depth_split, '
-        'coverage_px, depth_tolerance, resolution_weight_deg and depth_lookup_steps 0, min_depth_samples 10.',
+        'coverage_px, depth_tolerance, resolution_weight_deg, confidence_weight_deg and depth_lookup_steps '
+        '0, min_depth_samples 10.',
     ),
     Param(
         'coverage_px',
@@ -70,6 +71,20 @@ _RENDER = (
         2,
         'known-depth pixels a superpixel needs to be warped (the paper: 10)',
         (1, 100000),
+    ),
+    Param(
+        'confidence_weight_deg',
+        10.0,
+        'angle penalty (deg) per unit of missing depth confidence (keyframes/depth/confidence): low '
+        'confidence loses the blend, 0 = off',
+        (0.0, 1e3),
+    ),
+    Param(
+        'sky_depth_factor',
+        2.0,
+        "sky (+inf depth) is warped at this x the view's largest depth (the paper's Eq. 14: 2); 0 = as "
+        'directions (rotation only)',
+        (0.0, 1e3),
     ),
     Param(
         'max_axis_angle_deg',
@@ -187,6 +202,13 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
             'keyframes/depth',
             'sensor_msgs/Image',
             'refined depth, 32FC1 metres (REP-118) or 16UC1 mm',
+            'reliable, transient local',
+        ),
+        Topic(
+            'keyframes/depth/confidence',
+            'sensor_msgs/Image',
+            'optional: depth confidence, 32FC1 in [0, 1] (low confidence loses the blend, '
+            '`confidence_weight_deg`); without it the depth counts as sure',
             'reliable, transient local',
         ),
         Topic(

@@ -103,6 +103,7 @@ class DepthRefinerNode(Node):
         self._ended = False  # the camera stream ended: flush
         self._published: set[int] = set()  # stamps whose depth this process published (own or mirrored)
         self._others: dict[int, dict[str, object]] = {}  # depth messages of other workers, by stamp
+        self._mirrored: dict[int, bool] = {}  # stamps mirrored here -> whether with their confidence
         self._create_topics()
         if cfg.warmup:
             seconds = warm_up_refiner(cfg.mvs, self.refiner)
@@ -142,6 +143,7 @@ class DepthRefinerNode(Node):
         )
         self.pub_depth = self.create_publisher(Image, 'keyframes/depth', qos)
         self.pub_info = self.create_publisher(CameraInfo, 'keyframes/depth/camera_info', qos)
+        self.pub_conf = self.create_publisher(Image, 'keyframes/depth/confidence', qos)
         self.pub_kf = (
             {
                 'image': self.create_publisher(Image, 'keyframes/image', qos),
@@ -152,7 +154,11 @@ class DepthRefinerNode(Node):
             else {}
         )
         self.create_subscription(DiagnosticStatus, 'keyframes/status', self._on_status, latched_qos())
-        for msg_type, topic in ((Image, 'keyframes/depth'), (CameraInfo, 'keyframes/depth/camera_info')):
+        for msg_type, topic in (
+            (Image, 'keyframes/depth'),
+            (CameraInfo, 'keyframes/depth/camera_info'),
+            (Image, 'keyframes/depth/confidence'),
+        ):
             self.create_subscription(msg_type, topic, partial(self._on_depth, topic), qos)
         if self.num_workers > 1:
             self.pub_beat = self.create_publisher(DiagnosticStatus, 'refiners/heartbeat', reliable_qos())
@@ -319,12 +325,20 @@ class DepthRefinerNode(Node):
                 self._add_poseless(stamp, partial['image'], *partial['camera_info'])
 
     def _on_depth(self, topic: str, msg: Image | CameraInfo) -> None:
-        """Depth (or its camera_info) on keyframes/depth: another worker's is noted and mirrored once."""
+        """Depth (its camera_info, its confidence) on keyframes/depth: another worker's is noted and
+        mirrored once; a confidence that comes after its depth was mirrored follows it."""
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
         with self._lock:
+            late = topic == 'keyframes/depth/confidence' and self._mirrored.get(stamp) is False
+            if late:
+                self._mirrored[stamp] = True
             if stamp in self._published:  # this process's own (or already mirrored): no decoding
                 self._others.pop(stamp, None)
-                return
+                if not late:
+                    return
+        if late:
+            self.pub_conf.publish(msg)
+            return
         if topic == 'keyframes/depth':
             try:
                 depth = msg_utils.depth_image_to_m(msg)
@@ -355,10 +369,15 @@ class DepthRefinerNode(Node):
         with self._lock:
             view = self.schedule.view(stamp)
             rec = self._others.get(stamp, {})
-            if view is None or len(rec) < 2 or stamp in self._published:
+            both = 'keyframes/depth' in rec and 'keyframes/depth/camera_info' in rec
+            if view is None or not both or stamp in self._published:
                 return
             self._published.add(stamp)
             del self._others[stamp]
+            conf = rec.get('keyframes/depth/confidence')
+            self._mirrored[stamp] = conf is not None
+        if conf is not None:
+            self.pub_conf.publish(conf)
         self.pub_depth.publish(rec['keyframes/depth'])
         self.pub_info.publish(rec['keyframes/depth/camera_info'])
         self._publish_keyframe(stamp, view)
@@ -472,6 +491,8 @@ class DepthRefinerNode(Node):
                 self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
                 self.schedule.add(stamp, MvsView(image, camera, t_wc))
                 self.frame_ids[stamp] = frame_id
+            if len(u.points):
+                self.schedule.set_points(u.points)  # bounds each keyframe's depth range from now on
             if u.new:
                 self._version += 1
         unit = 'metres' if u.metric else 'unit = first baseline'
@@ -548,6 +569,8 @@ class DepthRefinerNode(Node):
                 return True
             self._published.add(job.stamp)
             self._others.pop(job.stamp, None)
+        if r.confidence is not None:  # before the depth: a renderer has it when the depth arrives
+            self.pub_conf.publish(msg_utils.confidence_to_image(r.confidence, header))
         self.pub_depth.publish(msg_utils.depth_m_to_image(r.depth, header))
         info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
@@ -570,7 +593,9 @@ class DepthRefinerNode(Node):
         self.get_logger().info(
             f'refined{again} keyframe {job.stamp} ns with {n} neighbours in {result.seconds:.2f} s '
             f'(MVS {t["mvs"]:.2f} s, refine {t["refine"]:.2f} s; MVS completeness {r.mvs_completeness:.2f}, '
-            f'range {rng[0]:.1f}-{rng[1]:.1f} {self.unit}{flags})'
+            f'range {rng[0]:.1f}-{rng[1]:.1f} {self.unit}'
+            f'{" from the sparse points" if job.plausible else ""}'
+            f'{f", {r.implausible} px outside it made unknown" if r.implausible else ""}{flags})'
         )
         return True
 

@@ -82,6 +82,7 @@ class ViewRenderer(Node):
             max_bytes=cfg.max_pending_bytes,
         )
         self.indices: dict[int, int] = {}  # stamp -> view index in the renderer
+        self.confidence: dict[int, np.ndarray] = {}  # stamp -> depth confidence (keyframes/depth/confidence)
         self.model_frame = ''
         self.latest_camera: PinholeCamera | None = None
         self.answered = 0
@@ -98,6 +99,10 @@ class ViewRenderer(Node):
             (Image, 'depth', lambda m: np.array(msg_utils.depth_image_to_m(m))),
         ):
             subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
+        subscribe_field(
+            self, Image, 'keyframes/depth/confidence', qos, 'confidence',
+            lambda m: np.array(msg_utils.image_to_confidence(m)), self._on_confidence, self.bad,
+        )  # fmt: skip
         self._query_sub = self.create_subscription(
             PoseStamped, 'novel_view/query', self._on_query_msg, reliable_qos(100)
         )
@@ -143,6 +148,23 @@ class ViewRenderer(Node):
         if (record := self.frames.put(stamp, field, value)) is not None:
             self._update(stamp, record)
 
+    def _on_confidence(self, stamp: int, field: str, value: np.ndarray) -> None:
+        """A depth confidence: kept for its keyframe (optional: without one the depth counts as sure)."""
+        if stamp in self.indices:
+            v = self.renderer.views[self.indices[stamp]]
+            if v.confidence is not None and np.array_equal(v.confidence, value):
+                return  # a mirror's copy
+            self.confidence[stamp] = value
+            if v.depth is not None:
+                kf = {'image': v.rgb, 'camera_info': v.camera, 'pose': (v.t_wc, ''), 'depth': v.depth}
+                self._update(stamp, kf)
+            return
+        self.confidence[stamp] = value
+        while len(self.confidence) > 2 * self.max_keyframes:  # of keyframes that never came
+            dropped = min(s for s in self.confidence if s not in self.indices)
+            del self.confidence[dropped]
+            self.bad('confidence', f'confidence of keyframe {dropped} ns dropped: its keyframe did not come')
+
     def _update(self, stamp: int, kf: dict[str, Any]) -> None:
         """Add complete keyframe ``kf`` to the model or replace its depth (a bad one waits for another)."""
         rgb, cam, (pose, frame), depth = kf['image'], kf['camera_info'], kf['pose'], kf['depth']
@@ -165,7 +187,12 @@ class ViewRenderer(Node):
         if not replaced:
             self.model_frame = frame
         t0 = time.perf_counter()
-        view = SourceView(rgb, depth, cam, pose, name=str(stamp), stamp=stamp * 1e-9)
+        conf = self.confidence.get(stamp)
+        if conf is not None and conf.shape != depth.shape:
+            self.bad('size', f'keyframe {stamp} ns: confidence {conf.shape[::-1]}, depth {depth.shape[::-1]}')
+            del self.confidence[stamp]  # dropped (counted): the depth counts as sure
+            conf = None
+        view = SourceView(rgb, depth, cam, pose, name=str(stamp), stamp=stamp * 1e-9, confidence=conf)
         if replaced:
             index = self.indices[stamp]
             self.renderer.replace_view(index, view)

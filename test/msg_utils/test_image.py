@@ -14,10 +14,12 @@ from sensor_msgs.msg import Image
 from msg_utils import (
     ENCODINGS,
     MessageError,
+    confidence_to_image,
     depth_image_to_m,
     depth_m_to_image,
     depth_m_to_mm,
     depth_mm_to_m,
+    image_to_confidence,
     image_to_numpy,
     image_to_rgb,
     is_rosbags_message,
@@ -293,3 +295,17 @@ def test_depth_m_to_image_marks_unknown_as_nan(flavor):
 def test_depth_image_to_m_rejects_colour():
     with pytest.raises(MessageError, match=r"Image\.encoding 'rgb8' is not a depth encoding"):
         depth_image_to_m(numpy_to_image(np.zeros((1, 1, 3), np.uint8), 'rgb8'))
+
+
+@pytest.mark.parametrize('flavor', FLAVORS)
+def test_confidence_round_trip_and_checks(flavor):
+    c = np.array([[0.0, 0.25], [0.5, 1.0]], np.float32)
+    msg = confidence_to_image(c, make_header(7, 'cam', flavor), flavor=flavor)
+    assert msg.encoding == '32FC1'
+    assert np.array_equal(image_to_confidence(msg), c)
+    raw = numpy_to_image(np.array([[np.nan, 1.5], [-0.5, 0.5]], np.float32), '32FC1', flavor=flavor)
+    assert image_to_confidence(raw).tolist() == [[0.0, 1.0], [0.0, 0.5]]  # NaN -> 0, clipped
+    with pytest.raises(MessageError, match=r'confidence must be finite and in \[0, 1\], got 1.5'):
+        confidence_to_image(np.array([[1.5]], np.float32), flavor=flavor)
+    with pytest.raises(MessageError, match="encoding 'mono8': a depth confidence is 32FC1"):
+        image_to_confidence(numpy_to_image(np.zeros((2, 2), np.uint8), 'mono8', flavor=flavor))

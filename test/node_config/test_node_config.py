@@ -40,8 +40,11 @@ def test_render_parameter_defaults_are_the_core_defaults_and_the_params_file(rep
 def test_zero_switches_the_additions_off_giving_the_papers_renderer() -> None:
     off = {'blend': 'paper', 'depth_split': 0.0, 'coverage_px': 0.0, 'depth_tolerance': 0.0}
     paper = render_config(
-        {**off, 'resolution_weight_deg': 0.0, 'depth_lookup_steps': 0, 'min_depth_samples': 10}
-    )
+        {
+            **off, 'resolution_weight_deg': 0.0, 'depth_lookup_steps': 0, 'min_depth_samples': 10,
+            'confidence_weight_deg': 0.0,
+        }
+    )  # fmt: skip
     assert paper == RenderConfig.paper()
     assert render_config({'depth_split': 0.05, 'n_views': 2}).depth_split == 0.05
 

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ['build_mst', 'fuse_depth', 'mvs_support', 'tree_filter']
+__all__ = ['build_mst', 'fuse_depth', 'fuse_with_support', 'mvs_support', 'tree_filter']
 
 # Neighbour bits of a pixel in the tree: right, down, left, up.
 _RIGHT, _DOWN, _LEFT, _UP = 1, 2, 4, 8
@@ -358,6 +358,14 @@ def fuse_depth(
     sample take ``d_mono``.  ``alpha = 0`` is the pure-propagation ablation; pixels whose ``J^A``
     underflows to 0 there (no MVS depth within reach) fall back to ``d_mono``.
     """
+    return fuse_with_support(rgb, d_mvs, d_mono, sigma, alpha)[0]
+
+
+def fuse_with_support(
+    rgb: np.ndarray, d_mvs: np.ndarray, d_mono: np.ndarray, sigma: float = 0.06, alpha: float = 1e-5
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """:func:`fuse_depth` and the MVS support ``J^A`` (Eq. 11) of each pixel, both float32 H x W,
+    from one tree (the support feeds :func:`~ibr_ros.core.depth.confidence.depth_confidence`)."""
     _check_rgb(rgb)
     H, W = rgb.shape[:2]
     _check_depth('d_mvs', d_mvs, (H, W))
@@ -369,4 +377,7 @@ def fuse_depth(
     order, ppos, wpar = _tree(rgb)
     dm = np.ascontiguousarray(d_mvs).reshape(-1)
     agg = _aggregate(order, ppos, wpar, dm, _similarity(s))
-    return _combine(order, agg, dm, np.ascontiguousarray(d_mono).reshape(-1), a).reshape(H, W)
+    fused = _combine(order, agg, dm, np.ascontiguousarray(d_mono).reshape(-1), a).reshape(H, W)
+    support = np.empty(H * W, np.float32)
+    support[order] = agg[:, 0]
+    return fused, support.reshape(H, W)

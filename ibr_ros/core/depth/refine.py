@@ -3,10 +3,11 @@
 """Per-view depth refinement (paper Section III-A): MVS -> prune -> mono remap -> MST fusion -> sky.
 
 :class:`DepthRefiner` composes :mod:`mvs`, :mod:`prune`, :mod:`mono`, :mod:`remap`, :mod:`fusion`
-and :mod:`sky` and keeps every intermediate map for debugging and evaluation. :func:`refine_job`
-is one step of the depth_refiner node and ``ibr process``: MVS, then refinement, of one
-:class:`~ibr_ros.core.depth.schedule.RefineJob`. Depth maps are float32 z-depth in metres,
-0 = unknown, +inf = infinitely far.
+and :mod:`sky` and keeps every intermediate map for debugging and evaluation; the result carries a per-pixel
+confidence (:mod:`~ibr_ros.core.depth.confidence`). :func:`refine_job` is one step of the
+depth_refiner node and ``ibr process``: MVS, then refinement, of one
+:class:`~ibr_ros.core.depth.schedule.RefineJob`. Depth maps are float32 z-depth in metres, 0 =
+unknown, +inf = sky (the renderer gives it the paper's Eq. 14 depth, or warps it as directions).
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ibr_ros.core.depth.fusion import fuse_depth
+from ibr_ros.core.depth.confidence import ConfidenceConfig, depth_confidence
+from ibr_ros.core.depth.fusion import fuse_with_support
 from ibr_ros.core.depth.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth
 from ibr_ros.core.depth.mvs import MvsOptions, MvsResult, MvsView, compute_depth_maps
 from ibr_ros.core.depth.prune import prune_depth
@@ -58,6 +60,7 @@ class RefinerConfig:
     or ``'none'``. ``sky_erosion``: erosion disk diameter as a fraction of the image diagonal.
     ``min_mvs_fraction``: below this fraction of known MVS pixels the result is flagged
     ``sparse_mvs`` (it is still computed while at least ``min_mvs_pixels`` are known).
+    ``confidence``: the constants of the per-pixel confidence.
     """
 
     prune: bool = True
@@ -73,6 +76,7 @@ class RefinerConfig:
     sky_erosion: float = 0.03
     min_mvs_pixels: int = 64
     min_mvs_fraction: float = 0.01
+    confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
 
     def __post_init__(self) -> None:
         if self.mono not in ('plane', 'onnx'):
@@ -91,7 +95,10 @@ class RefinerConfig:
 class RefinedDepth:
     """The final depth of one view and every intermediate map (paper Fig. 3).
 
-    ``sky`` is the eroded sky mask that received the sky depth; ``sky_raw`` the mask before erosion.
+    ``depth``: metres, 0 = unknown, +inf = sky; ``confidence``: float32 in [0, 1] per pixel (0 where
+    unknown). ``sky`` is the eroded sky mask (+inf in ``depth``), ``sky_raw`` the mask before erosion;
+    ``sky_depth`` the paper's finite sky depth (Eq. 14, twice the largest MVS depth) for reference.
+    ``implausible``: pixels whose fused depth left the plausible range and became unknown.
     """
 
     depth: NDArray[np.float32]
@@ -102,7 +109,9 @@ class RefinedDepth:
     fused: NDArray[np.float32]
     sky: NDArray[np.bool_]
     sky_depth: float
+    confidence: NDArray[np.float32] | None = None
     sky_raw: NDArray[np.bool_] | None = None
+    implausible: int = 0
     flags: tuple[str, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
 
@@ -169,8 +178,21 @@ class DepthRefiner:
         refined.timings_s['mvs'] = time.perf_counter() - t0 - sum(refined.timings_s.values())
         return refined
 
-    def refine_from_mvs(self, view: MvsView, d_mvs: NDArray[np.floating]) -> RefinedDepth:
-        """Everything after MVS: prune, sky mask, G, LUT remap, fusion and sky depth."""
+    def refine_from_mvs(
+        self,
+        view: MvsView,
+        d_mvs: NDArray[np.floating],
+        *,
+        zncc: NDArray[np.floating] | None = None,
+        n_consistent: NDArray[np.integer] | None = None,
+        plausible: tuple[float, float] | None = None,
+    ) -> RefinedDepth:
+        """Everything after MVS: prune, sky mask, G, LUT remap, fusion, sky and confidence.
+
+        ``zncc`` / ``n_consistent``: the MVS score and agreeing-view count per pixel (for the
+        confidence; None: full). ``plausible``: (near, far) metres the view's depth can take (from
+        the SfM points it sees): fused depth outside it becomes unknown (0), never a made-up value.
+        """
         c = self.config
         rgb = np.asarray(view.rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
@@ -233,10 +255,20 @@ class DepthRefiner:
 
         mono = lut_remap(g, pruned)
         lap('remap')
-        fused = fuse_depth(rgb, pruned, mono, sigma=c.sigma, alpha=c.alpha)
+        fused, support = fuse_with_support(rgb, pruned, mono, sigma=c.sigma, alpha=c.alpha)
         lap('fusion')
-        final, sky_depth = apply_sky_depth(fused, sky, pruned)
-        lap('sky_depth')
+        sky_depth = apply_sky_depth(fused, sky, pruned)[1]
+        final = fused.copy()
+        implausible = 0
+        if plausible is not None:
+            bad = (final > 0) & np.isfinite(final) & ((final < plausible[0]) | (final > plausible[1]))
+            implausible = int(np.count_nonzero(bad))
+            final[bad] = 0.0
+        final[sky] = np.inf
+        confidence = depth_confidence(
+            final, pruned, mono, support, zncc=zncc, n_consistent=n_consistent, config=c.confidence
+        )
+        lap('sky_confidence')
         return RefinedDepth(
             depth=final,
             mvs=mvs,
@@ -246,7 +278,9 @@ class DepthRefiner:
             fused=fused,
             sky=sky,
             sky_depth=sky_depth,
+            confidence=confidence,
             sky_raw=sky_raw,
+            implausible=implausible,
             flags=tuple(flags),
             timings_s=timings,
         )
@@ -292,7 +326,9 @@ def refine_job(refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions) -> JobRes
     t1 = time.perf_counter()
     context = f'{n} neighbours, MVS {m.reason or "ok"}'
     try:
-        r = refiner.refine_from_mvs(job.view, m.depth)
+        r = refiner.refine_from_mvs(
+            job.view, m.depth, zncc=m.confidence, n_consistent=m.n_consistent, plausible=job.plausible
+        )
     except RefineError as exc:
         return JobResult(
             job, m, None, context, str(exc), {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}

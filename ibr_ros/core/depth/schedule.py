@@ -18,8 +18,11 @@ no image work itself.
   With ``refine_again`` a refined keyframe is due again whenever more neighbours (up to
   ``mvs.max_neighbours``) become available (and more than in a failed attempt). The oldest due
   keyframe comes first.
-* Depth range of the MVS sweep: ``depth_range`` ``(near, far)`` (m) when set; else
-  ``(near_ratio, far_ratio) x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
+* Depth range of the MVS sweep: ``depth_range`` ``(near, far)`` (m) when set; else, once the
+  flight's sparse points are known (:meth:`RefineScheduler.set_points`, SfM), the range of the
+  points the keyframe sees (:func:`~ibr_ros.core.depth.mvs.depth_range_from_points`), which also
+  bounds the refined depth (:attr:`RefineJob.plausible`); else ``(near_ratio, far_ratio) x s``
+  with ``s`` the scene depth at the image centre: ``scene_depth_m``
   when set, else :func:`axis_scene_depth` (oblique and orbit flights), else (parallel axes, e.g. a
   nadir survey) 12.5 x the mean distance to the two nearest keyframes (the inverse of the
   frame_subsampler's 0.08 baseline ratio), with a warning to set ``scene_depth_m``.
@@ -35,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView, select_neighbours
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, depth_range_from_points, select_neighbours
 from ibr_ros.core.flight.status import shard_of
 
 __all__ = [
@@ -127,7 +130,9 @@ class ScheduleConfig:
 class RefineJob:
     """One (re)refinement: keyframe ``stamp`` with its neighbours (stamps and views, best first).
 
-    ``depth_range``: (near, far) of the MVS sweep in metres; ``again``: it was refined before.
+    ``depth_range``: (near, far) of the MVS sweep in metres; ``plausible``: the same range when it
+    comes from the sparse points the keyframe sees (the refined depth must lie in it), else None;
+    ``again``: it was refined before.
     """
 
     stamp: int
@@ -136,6 +141,7 @@ class RefineJob:
     neighbour_views: tuple[MvsView, ...]
     depth_range: tuple[float, float]
     again: bool = False
+    plausible: tuple[float, float] | None = None
 
     @property
     def views(self) -> list[MvsView]:
@@ -167,6 +173,7 @@ class RefineScheduler:
         self._range_warned = False
         self._elsewhere: set[int] = set()
         self._owns: Callable[[int], bool] = self._shard_owns
+        self._points: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self._kfs)
@@ -221,6 +228,15 @@ class RefineScheduler:
         """Stamps of this worker's keyframes not refined (yet, here or elsewhere), oldest first."""
         return sorted(s for s, k in self._kfs.items() if k.mine and not k.used and not k.elsewhere)
 
+    def set_points(self, points_w: np.ndarray) -> None:
+        """The flight's sparse points (Px3 world metres, the keyframe poses' frame; e.g. SfM's):
+        from now on each keyframe's depth range comes from the points it sees (10 or more)."""
+        pts = np.asarray(points_w, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f'points_w must be Px3, got shape {pts.shape}')
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        self._points = pts if len(pts) else None
+
     def pop_warnings(self) -> list[str]:
         """Warnings raised since the last call (each situation is reported once)."""
         out, self._warnings = self._warnings, []
@@ -229,12 +245,17 @@ class RefineScheduler:
     def depth_range(self, stamp_ns: int) -> tuple[float, float]:
         """MVS (near, far) in metres for the keyframe ``stamp_ns`` given the other keyframes."""
         kf = self._kfs[int(stamp_ns)]
-        return self._range(kf, [k for k in self._kfs.values() if k is not kf])
+        return self._range(kf, [k for k in self._kfs.values() if k is not kf])[0]
 
-    def _range(self, kf: _Keyframe, others: list[_Keyframe]) -> tuple[float, float]:
+    def _range(self, kf: _Keyframe, others: list[_Keyframe]) -> tuple[tuple[float, float], bool]:
+        """(near, far) and whether it comes from the sparse points."""
         cfg = self.config
         if cfg.depth_range is not None:
-            return cfg.depth_range
+            return cfg.depth_range, False
+        if self._points is not None:
+            rng = depth_range_from_points(self._points, kf.view.camera, kf.view.t_wc)
+            if rng is not None:
+                return rng, True
         s = cfg.scene_depth_m or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
         if s is None:
             c = kf.view.t_wc[:3, 3]
@@ -246,7 +267,7 @@ class RefineScheduler:
                     f'optical axes do not converge: scene depth guessed as {s:.1f} m from the keyframe '
                     'spacing; set scene_depth_m or depth_range'
                 )
-        return s * cfg.near_ratio, s * cfg.far_ratio
+        return (s * cfg.near_ratio, s * cfg.far_ratio), False
 
     def next_job(self, flush: bool = False) -> RefineJob | None:
         """The oldest keyframe of this worker due for (re)refinement, or None.
@@ -264,7 +285,7 @@ class RefineScheduler:
         for i, kf in enumerate(kfs):
             if not kf.mine or kf.elsewhere or (kf.used and not cfg.refine_again):
                 continue
-            rng = self._range(kf, kfs[:i] + kfs[i + 1 :])
+            rng, from_points = self._range(kf, kfs[:i] + kfs[i + 1 :])
             nbrs = select_neighbours(i, poses, cams, depth_range=rng, **options)
             n = len(nbrs)
             if kf.used:
@@ -280,6 +301,7 @@ class RefineScheduler:
                     tuple(k.view for k in chosen),
                     rng,
                     again=bool(kf.used),
+                    plausible=rng if from_points else None,
                 )
             if flush and n == 0 and not kf.alone_warned:
                 kf.alone_warned = True

@@ -63,7 +63,7 @@ class SplatRenderer(NovelViewRenderer):
             before = claimed.copy()
             zb = z.copy()
             r, t = relative_pose(t_wn, v.t_wc)
-            depth = np.ascontiguousarray(v.depth, dtype=np.float32)
+            depth = self.view_depth(i)
             _splat(
                 v.rgb,
                 depth,
@@ -112,7 +112,7 @@ class UlrRenderer(NovelViewRenderer):
         for i in cands:
             v = self.views[i]
             r, t = relative_pose(t_wn, v.t_wc)
-            depth = np.ascontiguousarray(v.depth, dtype=np.float32)
+            depth = self.view_depth(i)
             _splat(dummy, depth, intrinsics_vector(v.camera), kn, r, t, cfg.near, dummy, nz, claimed, False)
         _fill_cracks(nz, claimed)
         n = len(cands)
@@ -121,7 +121,7 @@ class UlrRenderer(NovelViewRenderer):
         for j, i in enumerate(cands):
             v = self.views[i]
             r_sn, t_sn = relative_pose(v.t_wc, t_wn)  # novel frame -> view frame
-            depth = np.ascontiguousarray(v.depth, dtype=np.float32)
+            depth = self.view_depth(i)
             _ulr_view(
                 v.rgb,
                 depth,

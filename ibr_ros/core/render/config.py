@@ -18,6 +18,7 @@ PAPER_FIELDS: dict[str, object] = {
     'resolution_weight_deg': 0.0,
     'depth_lookup_steps': 0,
     'min_depth_samples': 10,
+    'confidence_weight_deg': 0.0,
 }
 
 
@@ -63,6 +64,11 @@ class RenderConfig:
             0: all).
         max_cached_views: LRU size of the per-view cache.
         min_depth_samples, min_depth_fraction: ``has_depth`` rule of ``superpixel_stats``.
+        confidence_weight_deg: angle penalty (degrees) added to a superpixel per unit of missing
+            depth confidence (``1 - mean confidence`` of its pixels, when the view has one): low
+            confidence loses the blend (0: off, the paper).
+        sky_depth_factor: sky pixels (depth ``+inf``) are warped at this times the view's largest
+            finite depth (the paper's Eq. 14: 2); 0 warps them as directions (rotation only).
     """
 
     blend: Literal['paper', 'soft', 'ulr'] = 'ulr'
@@ -91,6 +97,8 @@ class RenderConfig:
     max_cached_views: int = 64
     min_depth_samples: int = 2
     min_depth_fraction: float = 0.05
+    confidence_weight_deg: float = 10.0
+    sky_depth_factor: float = 2.0
 
     def __post_init__(self) -> None:
         if self.blend not in ('paper', 'soft', 'ulr'):
@@ -123,8 +131,9 @@ class RenderConfig:
                 f'need depth_split_levels 0..8 and depth_split_min_px >= 0, got {self.depth_split_levels}, '
                 f'{self.depth_split_min_px}'
             )
-        if not self.resolution_weight_deg >= 0:
-            raise ValueError(f'resolution_weight_deg must be >= 0, got {self.resolution_weight_deg}')
+        for name in ('resolution_weight_deg', 'confidence_weight_deg', 'sky_depth_factor'):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
 
     def as_paper(self) -> RenderConfig:
         """This configuration with the paper's renderer: :data:`PAPER_FIELDS` (best-angle blend,

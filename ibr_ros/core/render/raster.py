@@ -116,7 +116,7 @@ def _span(ib, c, lo, hi, xs, xe):
 
 
 @njit(cache=True)
-def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, depth, rel, thr2):
+def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, fb, r0, r1, depth, rel, thr2):
     """Rows ``r0..r1`` of :func:`raster_views` for one view."""
     for oi in range(order.size):
         k = order[oi]
@@ -168,10 +168,11 @@ def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, de
                 if ids[y, x] < 0:
                     ui = min(max(int(u + 0.5), bx0), bx1)  # u >= bx0 - 0.5 > -1: int() is floor
                     vi = min(max(int(v + 0.5), by0), by1)
-                    if labels[vi, ui] == kk and (
-                        not check or lands_near(depth[vi, ui], hx, hy, hz, rel, x, y, thr2)
-                    ):
-                        ids[y, x] = k
+                    if labels[vi, ui] == kk:
+                        if not check or lands_near(depth[vi, ui], hx, hy, hz, rel, x, y, thr2):
+                            ids[y, x] = k
+                        elif fb[y, x] < 0:
+                            fb[y, x] = k
                 u += b00
                 v += b10
                 hx += sx
@@ -181,7 +182,7 @@ def _raster_band(labels, bbox, span_off, spans, order, inv, box, ids, r0, r1, de
 
 @njit(cache=True, parallel=True)
 def raster_views(
-    labels, depths, n, bbox, span_off, spans, order, order_off, inv, box, rel, thr2, ids, n_bands
+    labels, depths, n, bbox, span_off, spans, order, order_off, inv, box, rel, thr2, ids, fb, n_bands
 ):
     """Draw the warped superpixels of ``n <= 4`` views front to back into their id buffers.
 
@@ -193,7 +194,9 @@ def raster_views(
     inverse affine maps ``inv[j]``, destination boxes ``box[j]``) draws superpixels
     ``order[order_off[j]:order_off[j + 1]]`` (nearest first). ``ids[j]`` (-1 = free) gets the
     superpixel of every pixel that maps back onto one of that superpixel's own source pixels
-    (nearest pixel); the first (nearest) superpixel keeps a pixel. Only the x-range of each row
+    (nearest pixel); the first (nearest) superpixel keeps a pixel. ``fb[j]`` (same shape) gets the
+    first superpixel that failed only the coverage test there (the caller's fallback where ``ids[j]``
+    stays free). Only the x-range of each row
     whose pre-image lies in the superpixel's box and in its column extent over the source rows
     crossed (both grown by half a pixel) is visited. Rows are split into ``n_bands`` bands
     processed in parallel.
@@ -212,6 +215,7 @@ def raster_views(
                 inv[j],
                 box[j],
                 ids[j],
+                fb[j],
                 r0,
                 r1,
                 depths[j],

@@ -32,7 +32,9 @@ coordinates are pixels with pixel centres at integers; all cameras are undistort
    claims it: a z-buffer at superpixel granularity. *Added* (``coverage_px``): the source pixel
    under the pre-image, reprojected with its own depth, must also land within ``coverage_px`` of
    the destination pixel, so that a superpixel whose affine warp overshoots a silhouette leaves
-   those pixels to the surface behind it.
+   those pixels to the surface behind it; a pixel that a view covers with no superpixel this way
+   takes that view's nearest superpixel that failed only this test (noisy depth, e.g. trees, must
+   not leave holes).
 4. Blending (:func:`~ibr_ros.core.render.blend.blend_views`) of the (up to 4) warped images, per
    pixel, from the angle penalty of Chaurasia et al. 2011: the angle at the superpixel's 3D anchor
    (centroid at median depth) between the ray from the source centre and the ray from the novel
@@ -125,7 +127,8 @@ class SourceView:
     """One posed input image.
 
     ``rgb``: uint8 ``(H, W, 3)``; ``depth``: float32 ``(H, W)`` z-depth in metres (0/NaN unknown,
-    ``+inf`` sky) or None; ``camera``: its ``W x H`` undistorted pinhole; ``t_wc``: 4x4 camera-to-world.
+    ``+inf`` sky) or None; ``camera``: its ``W x H`` undistorted pinhole; ``t_wc``: 4x4 camera-to-world;
+    ``confidence``: float32 ``(H, W)`` depth confidence in [0, 1] or None (full confidence).
     """
 
     rgb: NDArray[np.uint8]
@@ -134,6 +137,7 @@ class SourceView:
     t_wc: NDArray[np.float64]
     name: str = ''
     stamp: float = 0.0
+    confidence: NDArray[np.float32] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,10 +183,12 @@ class _ViewCache:
     span_off: NDArray[np.int64]
     spans: NDArray[np.int16]
     model: WarpModel
+    depth: NDArray[np.float32]  # as warped: +inf sky at sky_depth_factor x the largest depth
+    doubt: NDArray[np.float32]  # per superpixel: 1 - mean depth confidence
 
     @property
     def nbytes(self) -> int:
-        arrays = (self.labels, self.bbox, self.span_off, self.spans)
+        arrays = (self.labels, self.bbox, self.span_off, self.spans, self.depth, self.doubt)
         return sum(a.nbytes for a in arrays) + self.model.nbytes
 
 
@@ -291,6 +297,10 @@ class NovelViewRenderer:
             or not np.issubdtype(v.depth.dtype, np.floating)
         ):
             raise ValueError(f'views[{i}].depth must be None or a float ({h}, {w}) array')
+        if v.confidence is not None and (
+            not isinstance(v.confidence, np.ndarray) or v.confidence.shape != (h, w)
+        ):
+            raise ValueError(f'views[{i}].confidence must be None or a ({h}, {w}) array')
 
     @property
     def skipped_views(self) -> list[int]:
@@ -312,7 +322,7 @@ class NovelViewRenderer:
         cfg = self.config
         v = self.views[i]
         labels = slic(v.rgb, n_segments=cfg.n_segments, compactness=cfg.compactness)
-        depth = np.ascontiguousarray(v.depth, dtype=np.float32)
+        depth = self.view_depth(i)
         if cfg.depth_split is not None:
             labels = split_at_depth_edges(
                 labels, depth, log_gap=cfg.depth_split, levels=cfg.depth_split_levels,
@@ -339,11 +349,34 @@ class NovelViewRenderer:
         np.cumsum(bbox[:, 3] - bbox[:, 1] + 1, out=span_off[1:])
         spans = np.empty((span_off[-1], 2), np.int16)
         row_spans(labels, bbox, span_off, spans)
-        c = _ViewCache(labels.astype(np.int16) if small else labels, bbox, span_off, spans, model)
+        doubt = np.zeros(stats.n_labels, np.float32)
+        if v.confidence is not None:
+            conf = np.clip(np.nan_to_num(np.asarray(v.confidence, np.float32)), 0.0, 1.0)
+            size = np.bincount(labels.ravel(), minlength=stats.n_labels)
+            total = np.bincount(labels.ravel(), weights=conf.ravel(), minlength=stats.n_labels)
+            doubt = (1.0 - total / np.maximum(size, 1)).astype(np.float32)
+        c = _ViewCache(
+            labels.astype(np.int16) if small else labels, bbox, span_off, spans, model, depth, doubt
+        )
         self._cache[i] = c
         while len(self._cache) > cfg.max_cached_views:
             self._cache.popitem(last=False)
         return c
+
+    def view_depth(self, i: int) -> NDArray[np.float32]:
+        """View ``i``'s depth as rendered (float32 metres): its ``+inf`` sky at ``sky_depth_factor``
+        times its largest finite depth (Eq. 14) when that factor is > 0, else as given."""
+        v = self.views[i]
+        if v.depth is None:
+            raise ValueError(f'views[{i}] has no depth')
+        depth = np.ascontiguousarray(v.depth, dtype=np.float32)
+        f = self.config.sky_depth_factor
+        sky = np.isposinf(depth)
+        if f > 0 and sky.any():
+            finite = depth[np.isfinite(depth) & (depth > 0)]
+            if finite.size:
+                depth = np.where(sky, np.float32(f * float(finite.max())), depth)
+        return depth
 
     def prepare(self, indices: Sequence[int] | None = None) -> None:
         """Fill the per-view cache now (default: all views, up to ``max_cached_views``)."""
@@ -476,6 +509,8 @@ class NovelViewRenderer:
             pen[j, :kj] = res.angle_deg
             if cfg.resolution_weight_deg > 0:
                 pen[j, :kj] += cfg.resolution_weight_deg * res.resolution
+            if cfg.confidence_weight_deg > 0:
+                pen[j, :kj] += cfg.confidence_weight_deg * c.doubt
             zk[j, :kj] = res.depth
             fit[j, :kj] = res.fit_px
             bbox[j, :kj] = c.bbox
@@ -483,6 +518,7 @@ class NovelViewRenderer:
         order_off = np.zeros(n + 1, np.int64)
         np.cumsum([o.size for o in orders], out=order_off[1:])
         ids = np.full((n, h, w), -1, np.int16 if kmax <= np.iinfo(np.int16).max else np.int32)
+        fb = np.full_like(ids, -1)  # coverage fallback (see raster_views)
         labels = [c.labels for _, c in chosen]
         if len({lab.dtype for lab in labels}) > 1:  # a view with > 32767 superpixels (rare)
             labels = [lab.astype(np.int32) for lab in labels]
@@ -491,7 +527,7 @@ class NovelViewRenderer:
         iters = cfg.depth_lookup_steps
         thr2 = -1.0 if cfg.coverage_px is None else float(cfg.coverage_px) ** 2
         if iters > 0 or thr2 >= 0:
-            deps = [np.ascontiguousarray(self.views[i].depth, dtype=np.float32) for i, _ in chosen]
+            deps = [c.depth for _, c in chosen]
             rel = np.array(
                 [
                     reprojection_params(t_wn, camera, self.views[i].t_wc, self.views[i].camera)
@@ -516,8 +552,11 @@ class NovelViewRenderer:
             rel,
             thr2,
             ids,
+            fb,
             n_bands,
         )
+        if thr2 >= 0:  # a view's pixels it did not cover: its superpixel that failed only the coverage test
+            np.copyto(ids, fb, where=ids < 0)
         out = self._alloc(camera)
         tol = -1.0 if cfg.depth_tolerance is None else float(cfg.depth_tolerance)
         view_ids = np.array([i for i, _ in chosen], np.int16)

@@ -50,7 +50,8 @@ class Keyframe:
     camera_frame: str
     pose_frame: str
     reason: str
-    depth: np.ndarray | None = None  # refined, float32 metres (0 unknown)
+    depth: np.ndarray | None = None  # refined, float32 metres (0 unknown, +inf sky)
+    confidence: np.ndarray | None = None  # of the refined depth, float32 in [0, 1]
     neighbours: tuple[int, ...] = ()
     timings_s: dict[str, float] = field(default_factory=dict)
     bag_t_wc: np.ndarray | None = None

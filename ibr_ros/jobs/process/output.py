@@ -29,6 +29,7 @@ OUT_TOPICS = {
     'pose': ('/keyframes/pose', 'geometry_msgs/msg/PoseStamped'),
     'depth': ('/keyframes/depth', 'sensor_msgs/msg/Image'),
     'depth_info': ('/keyframes/depth/camera_info', 'sensor_msgs/msg/CameraInfo'),
+    'confidence': ('/keyframes/depth/confidence', 'sensor_msgs/msg/Image'),
     'query': ('/novel_view/query', 'geometry_msgs/msg/PoseStamped'),
     'view': ('/novel_view/image', 'sensor_msgs/msg/Image'),
     'view_info': ('/novel_view/camera_info', 'sensor_msgs/msg/CameraInfo'),
@@ -55,6 +56,9 @@ def write_bag(
         if k.depth is not None:
             events.append((k.stamp, 3, 'depth', msg_utils.depth_m_to_image(k.depth, header, **rb)))
             events.append((k.stamp, 4, 'depth_info', info))
+            if k.confidence is not None:
+                conf = msg_utils.confidence_to_image(k.confidence, header, **rb)
+                events.append((k.stamp, 4, 'confidence', conf))
     for v in views:
         query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)
         events.append((v.stamp, 5, 'query', query))

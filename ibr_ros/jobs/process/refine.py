@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
+from numpy.typing import NDArray
+
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, refine_job
@@ -20,19 +23,25 @@ LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the spli
 
 
 def refine_all(
-    keyframes: list[Keyframe], cfg: ProcessConfigs, progress: Progress | None
+    keyframes: list[Keyframe],
+    cfg: ProcessConfigs,
+    progress: Progress | None,
+    points_w: NDArray[np.float64] | None = None,
 ) -> dict[str, object]:
     """MVS + refinement of every keyframe, oldest first, with the whole flight known.
 
     Only ``keyframes`` take part: a keyframe left out of the list is nobody's MVS neighbour (``ibr
     eval rephoto`` leaves its held-out keyframes out this way). Sets each refined keyframe's
     ``depth`` and ``neighbours``; returns ``attempts``, ``not_refined`` (stamp -> why) and
-    ``warnings`` (the scheduler's, also logged).
+    ``warnings`` (the scheduler's, also logged). ``points_w``: SfM's sparse points (they bound each
+    keyframe's depth range, :meth:`RefineScheduler.set_points`).
     """
     by_stamp = {k.stamp: k for k in keyframes}
     scheduler = RefineScheduler(cfg.schedule)
     for k in keyframes:
         scheduler.add(k.stamp, MvsView(k.rgb, k.camera, k.t_wc))
+    if points_w is not None:
+        scheduler.set_points(points_w)
     try:
         refiner = DepthRefiner(cfg.refiner)  # loads the ONNX models of mono/sky 'onnx'
     except MonoModelError as exc:
@@ -64,6 +73,7 @@ def refine_all(
         scheduler.done(job)
         failures.pop(job.stamp, None)
         kf.depth = result.refined.depth
+        kf.confidence = result.refined.confidence
         kf.neighbours = job.neighbours
         LOG.info(
             'refined keyframe %d/%d (%d ns) with %d neighbours in %.2f s',

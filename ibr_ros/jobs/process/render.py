@@ -47,7 +47,15 @@ def render_all(
             unusable[str(k.stamp)] = f'frame {k.pose_frame!r}, the model is in {model_frame!r}'
             continue
         i = renderer.add_view(
-            SourceView(k.rgb, k.depth, k.camera, k.t_wc, name=str(k.stamp), stamp=k.stamp * 1e-9)
+            SourceView(
+                k.rgb,
+                k.depth,
+                k.camera,
+                k.t_wc,
+                name=str(k.stamp),
+                stamp=k.stamp * 1e-9,
+                confidence=k.confidence,
+            )
         )
         renderer.prepare([i])
         if (why := renderer.skip_reason(i)) is not None:

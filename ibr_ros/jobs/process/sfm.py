@@ -10,6 +10,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.undistort import undistort_image
@@ -49,9 +50,10 @@ def _sparse_depth(u: SfmUpdate, stamps: list[int]) -> float | None:
 
 def register_keyframes(
     sub: Subsampled, cfg: ProcessConfigs, threads: int | None, progress: Progress | None
-) -> tuple[list[Keyframe], ProcessConfigs, dict[str, object]]:
+) -> tuple[list[Keyframe], ProcessConfigs, dict[str, object], NDArray[np.float64]]:
     """SfM mode: register all keyframes with ONE :meth:`SfmSession.update`; the registered keyframes
-    (undistorted, with SfM's camera and pose), the configurations to refine them with, and the stats.
+    (undistorted, with SfM's camera and pose), the configurations to refine them with, the stats and
+    the sparse points (Px3, the poses' frame: they bound each keyframe's depth range).
     """
     keyframes, n = sub.keyframes, len(sub.keyframes)
     if n < cfg.sfm.min_keyframes:
@@ -153,4 +155,4 @@ def register_keyframes(
         'timing_s': dict(u.timing),
         'seconds': time.perf_counter() - t0,
     }
-    return kept, cfg, info
+    return kept, cfg, info, u.points

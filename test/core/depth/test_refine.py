@@ -47,14 +47,44 @@ def test_refined_depth_repairs_holes(frame):
     # Pruning removes most injected outliers and keeps most good samples.
     assert np.count_nonzero(r.mvs_pruned[outliers]) < 0.3 * outliers.sum()
     assert np.count_nonzero(r.mvs_pruned) > 0.9 * np.count_nonzero((mvs > 0) & ~outliers)
-    # Known MVS depth passes through; sky (eroded) gets 2 * max MVS depth.
+    # Known MVS depth passes through; sky (eroded) is +inf (REP-118), Eq. 14's depth is reported.
     keep = (r.mvs_pruned > 0) & ~r.sky
     np.testing.assert_array_equal(r.depth[keep], r.mvs_pruned[keep])
     assert r.sky_depth == pytest.approx(2 * r.mvs_pruned.max())
-    assert (r.depth[r.sky] == np.float32(r.sky_depth)).all()
-    assert np.isfinite(r.depth).all()
+    assert r.sky.any()
+    assert np.isposinf(r.depth[r.sky]).all()
+    assert np.isfinite(r.depth[~r.sky]).all()
     assert r.depth.min() > 0
-    assert set(r.timings_s) == {'prune', 'sky', 'mono', 'remap', 'fusion', 'sky_depth'}
+    assert set(r.timings_s) == {'prune', 'sky', 'mono', 'remap', 'fusion', 'sky_confidence'}
+    # Confidence: MVS pixels >= 0.5, filled ones below, sky at its constant, all in [0, 1].
+    c = r.confidence
+    assert c is not None
+    assert c.dtype == np.float32
+    assert c.shape == r.depth.shape
+    assert (c[keep] >= 0.5).all()
+    assert (c[~keep & ~r.sky] < 0.5).all()
+    assert c.min() >= 0.0
+    assert c.max() <= 1.0
+    # Confidence tracks error: the filled pixels it trusts more are nearer the truth.
+    trusted = hole & (c >= np.median(c[hole]))
+    doubted = hole & (c < np.median(c[hole]))
+    err = np.abs(r.depth - f.depth) / f.depth
+    assert np.mean(err[trusted]) < np.mean(err[doubted])
+
+
+def test_depth_outside_the_plausible_range_becomes_unknown(frame):
+    cam, t_wc, f = frame
+    mvs, _ = _simulated_mvs(frame)
+    view = MvsView(f.rgb, cam, t_wc)
+    full = DepthRefiner(RefinerConfig(sky='none')).refine_from_mvs(view, mvs)
+    finite = full.depth[np.isfinite(full.depth)]
+    near, far = np.percentile(finite, [5, 90])
+    r = DepthRefiner(RefinerConfig(sky='none')).refine_from_mvs(view, mvs, plausible=(near, far))
+    out = (full.depth < near) | (full.depth > far)
+    assert r.implausible == int(out.sum()) > 0
+    assert (r.depth[out] == 0).all()
+    assert (r.confidence[out] == 0).all()
+    np.testing.assert_array_equal(r.depth[~out], full.depth[~out])
 
 
 def test_alpha_zero_ablation_and_no_prune(frame):
@@ -83,6 +113,7 @@ def test_bad_input_is_a_clear_error(frame):
     mvs[:5] = np.nan
     mvs[5:10] = np.inf
     r = refiner.refine_from_mvs(view, mvs)
-    assert np.isfinite(r.depth).all()
+    assert np.isfinite(r.depth[~r.sky]).all()
+    assert (r.depth > 0).all()
     with pytest.raises(ValueError, match='mono'):
         RefinerConfig(mono='midas')  # type: ignore[arg-type]

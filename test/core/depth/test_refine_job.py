@@ -39,12 +39,12 @@ def test_the_step_is_mvs_then_refinement_of_the_keyframe(job):
 
 
 class _Failing:
-    def refine_from_mvs(self, view, d_mvs):
+    def refine_from_mvs(self, view, d_mvs, **evidence):
         raise RefineError('d_mvs has 3 known pixels')
 
 
 class _Unknown:
-    def refine_from_mvs(self, view, d_mvs):
+    def refine_from_mvs(self, view, d_mvs, **evidence):
         class R:
             depth = np.full(d_mvs.shape, np.nan, np.float32)
 

@@ -182,3 +182,25 @@ def test_a_keyframe_without_neighbours_is_reported_once_on_flush():
     assert all('has no neighbour' in w for w in warnings)
     assert s.next_job(flush=True) is None
     assert s.pop_warnings() == []
+
+
+def test_sparse_points_give_each_keyframe_its_depth_range_and_bound_its_depth():
+    """Nadir keyframes 50 m above ground: SfM-like points on the ground (z = 0 +- 2 m) replace the
+    spacing guess (the sweep would reach 300 m) and become the job's plausible range."""
+    rng = np.random.default_rng(0)
+    s = sched(min_neighbours=1, scene_depth_m=40.0)
+    for k in range(3):
+        s.add(T0 + k, nadir_view(4.0 * k))
+    assert s.depth_range(T0) == (10.0, 160.0)  # scene_depth_m x (near_ratio, far_ratio)
+    assert s.next_job(flush=True).plausible is None
+    ground = np.c_[rng.uniform(-30, 40, 500), rng.uniform(-30, 30, 500), rng.uniform(-2, 2, 500)]
+    s.set_points(np.r_[ground, [[np.nan, 0.0, 0.0]]])  # non-finite points are ignored
+    near, far = s.depth_range(T0)
+    assert 0.75 * 48 <= near <= 0.75 * 49.5  # percentiles 1 / 99 of the depths, times 0.75 / 1.5
+    assert 1.5 * 50.5 <= far <= 1.5 * 52
+    job = s.next_job(flush=True)
+    assert job.plausible == job.depth_range == s.depth_range(job.stamp)
+    s.set_points(np.zeros((0, 3)))  # none: back to the configured rule
+    assert s.depth_range(T0) == (10.0, 160.0)
+    with pytest.raises(ValueError, match=r'points_w must be Px3, got shape \(4,\)'):
+        s.set_points(np.zeros(4))

@@ -581,3 +581,70 @@ def test_read_only_and_strided_source_arrays_render_the_same(flight, scores) -> 
             (out.depth, ref.depth),
         ):
             np.testing.assert_array_equal(a, b)
+
+
+def _two_plane_views(camera: PinholeCamera) -> tuple[list[SourceView], np.ndarray]:
+    """Two views of a fronto-parallel plane 30 m away, 1 m left and right of the novel camera, in
+    different flat colours (red left, blue right); the novel pose is the identity."""
+    depth = plane_depth(camera, np.array([0.0, 0.0, 1.0]), 30.0)
+    views = []
+    for x, colour in ((-1.0, (200, 0, 0)), (1.0, (0, 0, 200))):
+        rgb = np.zeros((camera.height, camera.width, 3), np.uint8) + np.uint8(colour)
+        rgb = cv2.add(rgb, texture(camera.height, camera.width, seed=5) // 8)
+        views.append(SourceView(rgb, depth, camera, matrix_from_rt(np.eye(3), [x, 0.0, 0.0])))
+    return views, np.eye(4)
+
+
+def test_low_depth_confidence_loses_the_blend() -> None:
+    """Equal angle penalties: the view with the sure depth supplies the pixels; the doubted one
+    keeps only a small ULR weight."""
+    camera = PinholeCamera.from_fov(*SIZE, 70.0)
+    views, t_wn = _two_plane_views(camera)
+    doubt = [np.full(views[0].depth.shape, c, np.float32) for c in (0.1, 1.0)]
+    sure = [SourceView(v.rgb, v.depth, v.camera, v.t_wc, confidence=c) for v, c in zip(views, doubt)]
+    out = NovelViewRenderer(sure, RenderConfig(n_segments=100)).render(t_wn, camera)
+    ok = out.valid[20:-20, 40:-40]
+    assert ok.mean() > 0.9
+    assert (out.source[20:-20, 40:-40][ok] == 1).mean() > 0.95  # the confident view is the best
+    rgb = out.rgb[20:-20, 40:-40][ok].astype(float)
+    assert rgb[:, 2].mean() > 2 * rgb[:, 0].mean()  # blue dominates the blend
+    off = NovelViewRenderer(sure, RenderConfig(n_segments=100, confidence_weight_deg=0.0)).render(
+        t_wn, camera
+    )
+    assert abs(off.rgb[..., 2].astype(float).mean() - off.rgb[..., 0].astype(float).mean()) < 40
+    with pytest.raises(ValueError, match=r'views\[0\].confidence must be None or a \(180, 320\) array'):
+        NovelViewRenderer(
+            [SourceView(views[0].rgb, views[0].depth, camera, views[0].t_wc, confidence=doubt[0][:9])]
+        )
+
+
+def test_sky_at_infinity_is_warped_at_the_eq14_depth_or_as_directions() -> None:
+    camera = PinholeCamera.from_fov(*SIZE, 70.0)
+    views, _ = _two_plane_views(camera)
+    v = views[0]
+    depth = v.depth.copy()
+    depth[:40] = np.inf  # the top rows are sky
+    r = NovelViewRenderer([SourceView(v.rgb, depth, camera, v.t_wc)], RenderConfig(n_segments=100))
+    d = r.view_depth(0)
+    assert np.isfinite(d).all()
+    assert d[0, 0] == pytest.approx(2.0 * depth[40:].max())  # Eq. 14: twice the largest depth
+    r0 = NovelViewRenderer([SourceView(v.rgb, depth, camera, v.t_wc)], RenderConfig(sky_depth_factor=0.0))
+    assert np.isposinf(r0.view_depth(0)[:40]).all()
+    with pytest.raises(ValueError, match=r'sky_depth_factor must be >= 0, got -1\.0'):
+        RenderConfig(sky_depth_factor=-1.0)
+
+
+def test_pixels_no_view_covers_take_the_superpixels_that_failed_only_coverage() -> None:
+    """Depth noise of a few pixels of parallax (trees) makes the per-pixel coverage test fail
+    almost everywhere; the render stays complete instead of full of holes."""
+    camera = PinholeCamera.from_fov(*SIZE, 70.0)
+    views, t_wn = _two_plane_views(camera)
+    rng = np.random.default_rng(0)
+    noisy = [
+        SourceView(v.rgb, (v.depth * rng.uniform(0.5, 2.0, v.depth.shape)).astype(np.float32), camera, v.t_wc)
+        for v in views
+    ]
+    cfg = RenderConfig(n_segments=100, coverage_px=0.1)
+    out = NovelViewRenderer(noisy, cfg).render(t_wn, camera)
+    none = NovelViewRenderer(noisy, RenderConfig(n_segments=100, coverage_px=None)).render(t_wn, camera)
+    assert out.valid.mean() >= none.valid.mean() - 0.01

@@ -1,0 +1,110 @@
+# SPDX-FileCopyrightText: the ibr_ros developers
+# SPDX-License-Identifier: BSD-3-Clause
+"""Per-pixel confidence of a refined depth map, float32 in [0, 1] (0 = unknown depth).
+
+Three kinds of pixel, in decreasing trust:
+
+* **MVS** (pruned MVS depth kept): ``0.5 + 0.5 * p * g`` with the photometric term
+  ``p = clip((zncc - min_zncc) / (1 - min_zncc), 0, 1)`` (the sweep's aggregated ZNCC above the
+  acceptance threshold) and the geometric term ``g = min(1, n_consistent / full_consistent)`` (how
+  many other views confirmed the depth). A kept MVS pixel is never below 0.5.
+* **Filled** (no MVS depth; fused from the MVS depth propagated along the colour MST and the
+  remapped monocular depth): ``mono_only + (0.5 - mono_only) * s * a`` with the MST support
+  ``s = J^A / (J^A + 1)`` (Eq. 11: ``J^A`` is the sum of tree similarities to MVS pixels, so
+  ``s`` falls with the tree distance to the nearest MVS support) and the agreement of the fused
+  depth with the remapped monocular depth ``a = exp(-|ln(fused / mono)| / agreement_scale)``.
+  A filled pixel is always below 0.5; one far from any MVS support, or whose propagated MVS depth
+  the monocular depth contradicts, gets about ``mono_only``.
+* **Sky** (+inf): ``sky``; **unknown** (0, NaN, or depth outside the plausible range): 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ['ConfidenceConfig', 'depth_confidence']
+
+
+@dataclass(frozen=True)
+class ConfidenceConfig:
+    """Constants of :func:`depth_confidence` (see the module docstring).
+
+    ``min_zncc``: the ZNCC at which MVS accepts a match (MvsOptions.min_zncc); ``full_consistent``:
+    agreeing views for the full geometric term; ``agreement_scale``: relative fused/mono
+    disagreement (log ratio) at which the agreement falls to 1/e; ``mono_only``: confidence of
+    monocular depth without MVS support; ``sky``: confidence of segmented sky.
+    """
+
+    min_zncc: float = 0.5
+    full_consistent: int = 2
+    agreement_scale: float = 0.25
+    mono_only: float = 0.1
+    sky: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not -1.0 <= self.min_zncc < 1.0:
+            raise ValueError(f'ConfidenceConfig.min_zncc must be in [-1, 1), got {self.min_zncc}')
+        if self.full_consistent < 1:
+            raise ValueError(f'ConfidenceConfig.full_consistent must be >= 1, got {self.full_consistent}')
+        if not self.agreement_scale > 0:
+            raise ValueError(f'ConfidenceConfig.agreement_scale must be > 0, got {self.agreement_scale}')
+        if not 0.0 <= self.mono_only < 0.5:
+            raise ValueError(f'ConfidenceConfig.mono_only must be in [0, 0.5), got {self.mono_only}')
+        if not 0.0 <= self.sky <= 1.0:
+            raise ValueError(f'ConfidenceConfig.sky must be in [0, 1], got {self.sky}')
+
+
+def _check(name: str, a: NDArray, shape: tuple[int, ...]) -> NDArray:
+    arr = np.asarray(a)
+    if arr.shape != shape:
+        raise ValueError(f'{name} has shape {arr.shape}, the depth is {shape}')
+    return arr
+
+
+def depth_confidence(
+    depth: NDArray[np.floating],
+    mvs: NDArray[np.floating],
+    mono: NDArray[np.floating],
+    support: NDArray[np.floating],
+    *,
+    zncc: NDArray[np.floating] | None = None,
+    n_consistent: NDArray[np.integer] | None = None,
+    config: ConfidenceConfig | None = None,
+) -> NDArray[np.float32]:
+    """Confidence (float32 HxW in [0, 1]) of the refined ``depth`` (metres; 0/NaN unknown, +inf sky).
+
+    ``mvs``: the pruned MVS depth the fusion kept (known where finite and > 0); ``mono``: the
+    remapped monocular depth; ``support``: ``J^A`` of the fusion (:func:`~ibr_ros.core.depth.fusion.
+    fuse_with_support`); ``zncc`` / ``n_consistent``: the MVS score and agreeing-view count per
+    pixel (None: full photometric / geometric terms, e.g. for depth from another source).
+    """
+    c = config or ConfidenceConfig()
+    d = np.asarray(depth, dtype=np.float32)
+    if d.ndim != 2:
+        raise ValueError(f'depth must be HxW, got shape {d.shape}')
+    shape = d.shape
+    m = _check('mvs', mvs, shape).astype(np.float32, copy=False)
+    mo = _check('mono', mono, shape).astype(np.float32, copy=False)
+    j = _check('support', support, shape).astype(np.float32, copy=False)
+    known = np.isfinite(d) & (d > 0)
+    is_mvs = known & np.isfinite(m) & (m > 0)
+    p = np.float32(1.0)
+    if zncc is not None:
+        z = _check('zncc', zncc, shape).astype(np.float32, copy=False)
+        p = np.clip((z - c.min_zncc) / (1.0 - c.min_zncc), 0.0, 1.0)
+    g = np.float32(1.0)
+    if n_consistent is not None:
+        n = _check('n_consistent', n_consistent, shape).astype(np.float32)
+        g = np.minimum(1.0, n / np.float32(c.full_consistent))
+    c_mvs = 0.5 + 0.5 * p * g
+    s = np.where(j > 0, j / (j + 1.0), 0.0).astype(np.float32)
+    ok = np.isfinite(mo) & (mo > 0)
+    ratio = np.abs(np.log(np.where(known & ok, d, 1.0) / np.where(known & ok, mo, 1.0)))
+    a = np.where(ok, np.exp(-ratio / c.agreement_scale), 0.0).astype(np.float32)
+    c_fill = c.mono_only + (0.5 - c.mono_only) * s * a
+    out = np.where(is_mvs, c_mvs, np.where(known, c_fill, 0.0)).astype(np.float32)
+    out[np.isposinf(d)] = c.sky
+    return out
