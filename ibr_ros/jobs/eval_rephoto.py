@@ -482,10 +482,10 @@ def _evaluate_keyframes(bag: Path, out: Path, o: RephotoEvalOptions, progress: P
     timings['subsample'] = time.perf_counter() - tick
     tick = time.perf_counter()
     sfm_info: dict[str, object] | None = None
-    points = None
+    sparse = None
     keyframes = sub.keyframes
     if sub.sfm_why is not None:
-        keyframes, cfg, sfm_info, points = register_keyframes(sub, cfg, None, progress)
+        keyframes, cfg, sfm_info, sparse = register_keyframes(sub, cfg, None, progress)
     timings['sfm'] = time.perf_counter() - tick
     every = o.holdout_every or DEFAULT_HOLDOUT['keyframes']
     hold = holdout_indices(len(keyframes), every)
@@ -500,7 +500,7 @@ def _evaluate_keyframes(bag: Path, out: Path, o: RephotoEvalOptions, progress: P
     gt_renderer = GroundTruthRenderer(bag) if sfm_info is None and (bag / 'synth.json').is_file() else None
     out.mkdir(parents=True, exist_ok=True)
     tick = time.perf_counter()
-    refine_info = refine_all(kept, cfg, progress, points)  # the held-out keyframes are nobody's neighbour
+    refine_info = refine_all(kept, cfg, progress, sparse)  # the held-out keyframes are nobody's neighbour
     timings['refine'] = time.perf_counter() - tick
     position = {k.stamp: i for i, k in enumerate(keyframes)}
     model = [k for k in kept if k.depth is not None]

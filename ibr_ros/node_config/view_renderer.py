@@ -32,8 +32,8 @@ _RENDER = (
         'split superpixels at depth steps above this (log depth, 0.02 = 2 %), 0 = off',
         (0.0, 10.0),
         comment='Additions to the paper renderer (0 = off). The paper exactly: blend paper, depth_split, '
-        'coverage_px, depth_tolerance, resolution_weight_deg, confidence_weight_deg and depth_lookup_steps '
-        '0, min_depth_samples 10.',
+        'coverage_px, depth_tolerance, resolution_weight_deg, confidence_weight_deg, fill_holes_px and '
+        'depth_lookup_steps 0, min_depth_samples 10.',
     ),
     Param(
         'coverage_px',
@@ -78,6 +78,13 @@ _RENDER = (
         'angle penalty (deg) per unit of missing depth confidence (keyframes/depth/confidence): low '
         'confidence loses the blend, 0 = off',
         (0.0, 1e3),
+    ),
+    Param(
+        'fill_holes_px',
+        256,
+        'holes of a view up to this many pixels, not touching its border (cracks between superpixels), '
+        'are filled from their surroundings; 0 = off',
+        (0, 1000000),
     ),
     Param(
         'sky_depth_factor',

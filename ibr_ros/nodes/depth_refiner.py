@@ -491,8 +491,8 @@ class DepthRefinerNode(Node):
                 self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
                 self.schedule.add(stamp, MvsView(image, camera, t_wc))
                 self.frame_ids[stamp] = frame_id
-            if len(u.points):
-                self.schedule.set_points(u.points)  # bounds each keyframe's depth range from now on
+            if len(u.points):  # they bound each keyframe's depth range and seed its depth from now on
+                self.schedule.set_points(u.points, u.observed_points(self.sfm.stamps))
             if u.new:
                 self._version += 1
         unit = 'metres' if u.metric else 'unit = first baseline'

@@ -42,7 +42,7 @@ def test_zero_switches_the_additions_off_giving_the_papers_renderer() -> None:
     paper = render_config(
         {
             **off, 'resolution_weight_deg': 0.0, 'depth_lookup_steps': 0, 'min_depth_samples': 10,
-            'confidence_weight_deg': 0.0,
+            'confidence_weight_deg': 0.0, 'fill_holes_px': 0,
         }
     )  # fmt: skip
     assert paper == RenderConfig.paper()

@@ -182,9 +182,11 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
         pub_query = node.create_publisher(PoseStamped, 'novel_view/query', reliable_qos())
         pub_late = node.create_publisher(PoseStamped, 'late/query', reliable_qos())
         depths: list[Image] = []
+        confidences: list[Image] = []
         replies: list[Image] = []
         late_replies: list[Image] = []
         node.create_subscription(Image, 'keyframes/depth', depths.append, qos)
+        node.create_subscription(Image, 'keyframes/depth/confidence', confidences.append, qos)
         node.create_subscription(Image, 'novel_view/image', replies.append, reliable_qos())
         node.create_subscription(Image, 'late/image', late_replies.append, reliable_qos())
         # Each refiner and the renderer subscribe to the three keyframe topics.
@@ -244,6 +246,14 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
             assert ok.sum() > 0.95 * ground.sum(), f'frame {i}: depth missing on non-sky pixels'
             rels[i] = float(np.median(np.abs(d[ok] - gt[ok]) / gt[ok]))
         assert max(rels.values()) < 0.1, rels
+        # Each depth comes with its confidence (mirrored with it): 32FC1 in [0, 1], MVS pixels >= 0.5.
+        conf_stamps = lambda: Counter(msg_utils.stamp_to_ns(m.header.stamp) for m in confidences)  # noqa: E731
+        assert spin_until(node, lambda: conf_stamps() == twice, 30), conf_stamps()
+        for m in confidences:
+            c = msg_utils.image_to_confidence(m)
+            assert c.shape == (360, 640)
+            assert 0.0 <= c.min() <= c.max() <= 1.0
+            assert (c >= 0.5).mean() > 0.2  # MVS-confirmed depth on the synthetic town
 
         # The early renderer has the whole model: query the held-out pose.
         want = {f'added keyframe {s} ns' for s in stamp_of}

@@ -137,6 +137,26 @@ def _world_points(view: MvsView, depth: NDArray[np.float32], max_points: int = 2
     return pc @ view.t_wc[:3, :3].T + view.t_wc[:3, 3]
 
 
+def _seed_depth(
+    view: MvsView, points_w: NDArray[np.float64], plausible: tuple[float, float] | None
+) -> NDArray[np.float32]:
+    """Sparse z-depth (metres, 0 unknown) of ``points_w`` in ``view`` (nearest per pixel)."""
+    cam = view.camera
+    t_cw = np.linalg.inv(view.t_wc)
+    pc = points_w.reshape(-1, 3) @ t_cw[:3, :3].T + t_cw[:3, 3]
+    lo, hi = plausible if plausible is not None else (0.0, np.inf)
+    pc = pc[(pc[:, 2] > lo) & (pc[:, 2] < hi)]
+    out = np.zeros((cam.height, cam.width), np.float32)
+    if not len(pc):
+        return out
+    u = np.rint(pc[:, 0] / pc[:, 2] * cam.fx + cam.cx).astype(np.int64)
+    v = np.rint(pc[:, 1] / pc[:, 2] * cam.fy + cam.cy).astype(np.int64)
+    ok = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    order = np.argsort(-pc[ok, 2])  # far first: the nearest point of a pixel is written last
+    out[v[ok][order], u[ok][order]] = pc[ok, 2][order]
+    return out
+
+
 class DepthRefiner:
     """Refine the depth of one view from its MVS depth, a monocular prediction and the sky."""
 
@@ -186,12 +206,15 @@ class DepthRefiner:
         zncc: NDArray[np.floating] | None = None,
         n_consistent: NDArray[np.integer] | None = None,
         plausible: tuple[float, float] | None = None,
+        seeds_w: NDArray[np.floating] | None = None,
     ) -> RefinedDepth:
         """Everything after MVS: prune, sky mask, G, LUT remap, fusion, sky and confidence.
 
         ``zncc`` / ``n_consistent``: the MVS score and agreeing-view count per pixel (for the
         confidence; None: full). ``plausible``: (near, far) metres the view's depth can take (from
         the SfM points it sees): fused depth outside it becomes unknown (0), never a made-up value.
+        ``seeds_w``: world points (Kx3) this view observed in SfM: depth samples where the pruned
+        MVS depth has none (textureless lawns, water edges), fused like MVS samples.
         """
         c = self.config
         rgb = np.asarray(view.rgb)
@@ -242,20 +265,24 @@ class DepthRefiner:
         sky = erode_sky(sky, diag_fraction=c.sky_erosion) if sky.any() else sky
         lap('sky')
 
+        samples = pruned  # depth samples of the LUT and the fusion: MVS, and SfM points where it has none
+        if seeds_w is not None and len(seeds_w):
+            seeds = _seed_depth(view, np.asarray(seeds_w, np.float64), plausible)
+            samples = np.where((pruned > 0) | sky, pruned, seeds).astype(np.float32)
         if self._mono is not None:
             g = self._mono.predict_g(rgb)
         else:
             try:
-                plane = fit_ground_plane(_world_points(view, pruned))
+                plane = fit_ground_plane(_world_points(view, samples))
             except ValueError:
                 plane = np.array([0.0, 0.0, 1.0, 0.0])
                 flags.append(FLAG_PLANE_FALLBACK)
             g = GroundPlanePrior(plane).predict_g(view.camera, view.t_wc)
         lap('mono')
 
-        mono = lut_remap(g, pruned)
+        mono = lut_remap(g, samples)
         lap('remap')
-        fused, support = fuse_with_support(rgb, pruned, mono, sigma=c.sigma, alpha=c.alpha)
+        fused, support = fuse_with_support(rgb, samples, mono, sigma=c.sigma, alpha=c.alpha)
         lap('fusion')
         sky_depth = apply_sky_depth(fused, sky, pruned)[1]
         final = fused.copy()
@@ -266,7 +293,7 @@ class DepthRefiner:
             final[bad] = 0.0
         final[sky] = np.inf
         confidence = depth_confidence(
-            final, pruned, mono, support, zncc=zncc, n_consistent=n_consistent, config=c.confidence
+            final, samples, mono, support, zncc=zncc, n_consistent=n_consistent, config=c.confidence
         )
         lap('sky_confidence')
         return RefinedDepth(
@@ -327,8 +354,9 @@ def refine_job(refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions) -> JobRes
     context = f'{n} neighbours, MVS {m.reason or "ok"}'
     try:
         r = refiner.refine_from_mvs(
-            job.view, m.depth, zncc=m.confidence, n_consistent=m.n_consistent, plausible=job.plausible
-        )
+            job.view, m.depth, zncc=m.confidence, n_consistent=m.n_consistent, plausible=job.plausible,
+            seeds_w=job.seeds_w,
+        )  # fmt: skip
     except RefineError as exc:
         return JobResult(
             job, m, None, context, str(exc), {'mvs': t1 - t0, 'refine': time.perf_counter() - t1}

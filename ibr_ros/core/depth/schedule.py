@@ -33,7 +33,7 @@ Warnings are returned once each by :meth:`RefineScheduler.pop_warnings` for the 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -132,7 +132,8 @@ class RefineJob:
 
     ``depth_range``: (near, far) of the MVS sweep in metres; ``plausible``: the same range when it
     comes from the sparse points the keyframe sees (the refined depth must lie in it), else None;
-    ``again``: it was refined before.
+    ``seeds_w``: world points (Kx3) the keyframe observed itself in SfM (depth samples where MVS
+    has none), or None; ``again``: it was refined before.
     """
 
     stamp: int
@@ -142,6 +143,7 @@ class RefineJob:
     depth_range: tuple[float, float]
     again: bool = False
     plausible: tuple[float, float] | None = None
+    seeds_w: np.ndarray | None = None
 
     @property
     def views(self) -> list[MvsView]:
@@ -174,6 +176,7 @@ class RefineScheduler:
         self._elsewhere: set[int] = set()
         self._owns: Callable[[int], bool] = self._shard_owns
         self._points: np.ndarray | None = None
+        self._observed: Mapping[int, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self._kfs)
@@ -228,14 +231,17 @@ class RefineScheduler:
         """Stamps of this worker's keyframes not refined (yet, here or elsewhere), oldest first."""
         return sorted(s for s, k in self._kfs.items() if k.mine and not k.used and not k.elsewhere)
 
-    def set_points(self, points_w: np.ndarray) -> None:
+    def set_points(self, points_w: np.ndarray, observed: Mapping[int, np.ndarray] | None = None) -> None:
         """The flight's sparse points (Px3 world metres, the keyframe poses' frame; e.g. SfM's):
-        from now on each keyframe's depth range comes from the points it sees (10 or more)."""
+        from now on each keyframe's depth range comes from the points it sees (10 or more).
+        ``observed``: by stamp, the points (Kx3) each keyframe observed itself (its jobs'
+        ``seeds_w``)."""
         pts = np.asarray(points_w, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f'points_w must be Px3, got shape {pts.shape}')
         pts = pts[np.isfinite(pts).all(axis=1)]
         self._points = pts if len(pts) else None
+        self._observed = dict(observed or {})
 
     def pop_warnings(self) -> list[str]:
         """Warnings raised since the last call (each situation is reported once)."""
@@ -302,6 +308,7 @@ class RefineScheduler:
                     rng,
                     again=bool(kf.used),
                     plausible=rng if from_points else None,
+                    seeds_w=self._observed.get(kf.stamp),
                 )
             if flush and n == 0 and not kf.alone_warned:
                 kf.alone_warned = True

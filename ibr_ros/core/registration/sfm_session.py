@@ -120,6 +120,25 @@ class SfmUpdate:
     def num_registered(self) -> int:
         return sum(p is not None for p in self.poses.values())
 
+    def observed_points(
+        self, stamps: list[int], *, min_track: int = 3, max_error_px: float = 2.0
+    ) -> dict[int, NDArray[np.float64]]:
+        """World points (Kx3, ``points``' frame) each registered view observed itself, by stamp:
+        those seen by at least ``min_track`` views with a mean reprojection error up to
+        ``max_error_px`` (reliable depth samples of that view). ``stamps``: the session's, sorted
+        (the order of the reconstruction's images)."""
+        res = self.result
+        out: dict[int, NDArray[np.float64]] = {}
+        if res is None or not self.accepted:
+            return out
+        good = (res.track_lengths >= min_track) & (res.point_errors <= max_error_px)
+        for i, stamp in enumerate(stamps):
+            if self.poses.get(stamp) is None or i >= len(res.observation_ids):
+                continue
+            ids = np.unique(res.observation_ids[i])
+            out[stamp] = self.points[ids[good[ids]]]
+        return out
+
 
 @dataclass
 class _View:

@@ -19,6 +19,7 @@ PAPER_FIELDS: dict[str, object] = {
     'depth_lookup_steps': 0,
     'min_depth_samples': 10,
     'confidence_weight_deg': 0.0,
+    'fill_holes_px': 0,
 }
 
 
@@ -69,6 +70,8 @@ class RenderConfig:
             confidence loses the blend (0: off, the paper).
         sky_depth_factor: sky pixels (depth ``+inf``) are warped at this times the view's largest
             finite depth (the paper's Eq. 14: 2); 0 warps them as directions (rotation only).
+        fill_holes_px: holes of the render up to this many pixels that do not touch its border
+            (cracks between warped superpixels) are filled from their surroundings (0: off).
     """
 
     blend: Literal['paper', 'soft', 'ulr'] = 'ulr'
@@ -99,6 +102,7 @@ class RenderConfig:
     min_depth_fraction: float = 0.05
     confidence_weight_deg: float = 10.0
     sky_depth_factor: float = 2.0
+    fill_holes_px: int = 256
 
     def __post_init__(self) -> None:
         if self.blend not in ('paper', 'soft', 'ulr'):
@@ -131,7 +135,7 @@ class RenderConfig:
                 f'need depth_split_levels 0..8 and depth_split_min_px >= 0, got {self.depth_split_levels}, '
                 f'{self.depth_split_min_px}'
             )
-        for name in ('resolution_weight_deg', 'confidence_weight_deg', 'sky_depth_factor'):
+        for name in ('resolution_weight_deg', 'confidence_weight_deg', 'sky_depth_factor', 'fill_holes_px'):
             if not getattr(self, name) >= 0:
                 raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
 

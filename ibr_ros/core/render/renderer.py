@@ -84,6 +84,7 @@ from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -190,6 +191,45 @@ class _ViewCache:
     def nbytes(self) -> int:
         arrays = (self.labels, self.bbox, self.span_off, self.spans, self.depth, self.doubt)
         return sum(a.nbytes for a in arrays) + self.model.nbytes
+
+
+def fill_small_holes(
+    rgb: NDArray[np.uint8],
+    valid: NDArray[np.bool_],
+    source: NDArray[np.int16],
+    depth: NDArray[np.float32],
+    *,
+    max_px: int,
+) -> int:
+    """Fill, in place, the holes of a render (8-connected components of ``~valid``) of at most
+    ``max_px`` pixels that do not touch the image border: cracks between warped superpixels, not
+    missing scene. Colour by inpainting (Telea), ``source`` and ``depth`` from the nearest rendered
+    pixel; they become valid. Returns the number of pixels filled."""
+    holes = (~valid).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=8)
+    if n <= 1:
+        return 0
+    x, y, w, h, area = stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3], stats[:, 4]
+    H, W = valid.shape
+    inner = (area <= max_px) & (x > 0) & (y > 0) & (x + w < W) & (y + h < H)
+    inner[0] = False  # the background label (rendered pixels)
+    mask = inner[labels]
+    filled = int(np.count_nonzero(mask))
+    if not filled:
+        return 0
+    rgb[:] = cv2.inpaint(rgb, mask.astype(np.uint8), 2, cv2.INPAINT_TELEA)
+    _, nearest = cv2.distanceTransformWithLabels(
+        holes, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_PIXEL
+    )  # label of the nearest rendered (zero) pixel
+    lut = np.zeros(int(nearest.max()) + 1, np.int64)  # label of a rendered pixel -> its flat index
+    zy, zx = np.nonzero(valid)
+    lut[nearest[zy, zx]] = zy * W + zx
+    my, mx = np.nonzero(mask)
+    src = lut[nearest[my, mx]]
+    source[my, mx] = source.reshape(-1)[src]
+    depth[my, mx] = depth.reshape(-1)[src]
+    valid[mask] = True
+    return filled
 
 
 class NovelViewRenderer:
@@ -566,4 +606,6 @@ class NovelViewRenderer:
         lookup = (int(iters), float(cfg.depth_lookup_max_px), float(cfg.depth_lookup_min_fit_px))
         rgbs = _four([self.views[i].rgb for i, _ in chosen])
         blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, weights, lookup, out)
+        if cfg.fill_holes_px > 0:
+            fill_small_holes(*out, max_px=cfg.fill_holes_px)
         return Rendered(*out, [i for i, _ in chosen], None, self.skipped_views)

@@ -116,11 +116,11 @@ def process_bag(
     sub = subsample(bag, cfg, o, progress)
     keyframes = sub.keyframes
     t_sub = time.perf_counter()
-    sfm_info, points = None, None
+    sfm_info, sparse = None, None
     if sub.sfm_why is not None:
-        keyframes, cfg, sfm_info, points = register_keyframes(sub, cfg, o.threads, progress)
+        keyframes, cfg, sfm_info, sparse = register_keyframes(sub, cfg, o.threads, progress)
     t_sfm = time.perf_counter()
-    refine_info = refine_all(keyframes, cfg, progress, points)
+    refine_info = refine_all(keyframes, cfg, progress, sparse)
     t_ref = time.perf_counter()
     views, render_info = render_all(keyframes, cfg, o.views, progress)
     t_render = time.perf_counter()

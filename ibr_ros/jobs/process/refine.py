@@ -6,9 +6,6 @@ from __future__ import annotations
 
 import logging
 
-import numpy as np
-from numpy.typing import NDArray
-
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, refine_job
@@ -17,6 +14,7 @@ from ibr_ros.errors import UserError
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
+from ibr_ros.jobs.process.sfm import SparsePoints
 from msg_utils import CONVERSION_ERRORS
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
@@ -26,22 +24,22 @@ def refine_all(
     keyframes: list[Keyframe],
     cfg: ProcessConfigs,
     progress: Progress | None,
-    points_w: NDArray[np.float64] | None = None,
+    sparse: SparsePoints | None = None,
 ) -> dict[str, object]:
     """MVS + refinement of every keyframe, oldest first, with the whole flight known.
 
     Only ``keyframes`` take part: a keyframe left out of the list is nobody's MVS neighbour (``ibr
     eval rephoto`` leaves its held-out keyframes out this way). Sets each refined keyframe's
     ``depth`` and ``neighbours``; returns ``attempts``, ``not_refined`` (stamp -> why) and
-    ``warnings`` (the scheduler's, also logged). ``points_w``: SfM's sparse points (they bound each
-    keyframe's depth range, :meth:`RefineScheduler.set_points`).
+    ``warnings`` (the scheduler's, also logged). ``sparse``: SfM's sparse points (they bound each
+    keyframe's depth range and seed its depth, :meth:`RefineScheduler.set_points`).
     """
     by_stamp = {k.stamp: k for k in keyframes}
     scheduler = RefineScheduler(cfg.schedule)
     for k in keyframes:
         scheduler.add(k.stamp, MvsView(k.rgb, k.camera, k.t_wc))
-    if points_w is not None:
-        scheduler.set_points(points_w)
+    if sparse is not None:
+        scheduler.set_points(sparse.points, sparse.observed)
     try:
         refiner = DepthRefiner(cfg.refiner)  # loads the ONNX models of mono/sky 'onnx'
     except MonoModelError as exc:

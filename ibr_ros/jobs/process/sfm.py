@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +34,15 @@ def _camera_dict(cam: PinholeCamera) -> dict[str, object]:
             'd': cam.d.tolist(), 'distortion_model': cam.distortion_model}  # fmt: skip
 
 
+@dataclass(frozen=True, eq=False)
+class SparsePoints:
+    """SfM's sparse points: ``points`` Px3 (the poses' frame) and, by stamp, the reliable points
+    each keyframe observed itself (:meth:`SfmUpdate.observed_points`)."""
+
+    points: NDArray[np.float64]
+    observed: dict[int, NDArray[np.float64]]
+
+
 def _sparse_depth(u: SfmUpdate, stamps: list[int]) -> float | None:
     """Median over the registered views of the median depth (world units) of the points each observes."""
     res = u.result
@@ -50,10 +59,10 @@ def _sparse_depth(u: SfmUpdate, stamps: list[int]) -> float | None:
 
 def register_keyframes(
     sub: Subsampled, cfg: ProcessConfigs, threads: int | None, progress: Progress | None
-) -> tuple[list[Keyframe], ProcessConfigs, dict[str, object], NDArray[np.float64]]:
+) -> tuple[list[Keyframe], ProcessConfigs, dict[str, object], SparsePoints]:
     """SfM mode: register all keyframes with ONE :meth:`SfmSession.update`; the registered keyframes
     (undistorted, with SfM's camera and pose), the configurations to refine them with, the stats and
-    the sparse points (Px3, the poses' frame: they bound each keyframe's depth range).
+    the sparse points (they bound each keyframe's depth range and seed its depth).
     """
     keyframes, n = sub.keyframes, len(sub.keyframes)
     if n < cfg.sfm.min_keyframes:
@@ -155,4 +164,4 @@ def register_keyframes(
         'timing_s': dict(u.timing),
         'seconds': time.perf_counter() - t0,
     }
-    return kept, cfg, info, u.points
+    return kept, cfg, info, SparsePoints(u.points, u.observed_points(session.stamps))

@@ -117,3 +117,22 @@ def test_bad_input_is_a_clear_error(frame):
     assert (r.depth > 0).all()
     with pytest.raises(ValueError, match='mono'):
         RefinerConfig(mono='midas')  # type: ignore[arg-type]
+
+
+def test_sfm_points_the_view_observed_seed_its_depth(frame):
+    """Sparse points on a region MVS left empty (a wall) pull the fused depth there to the truth."""
+    cam, t_wc, f = frame
+    mvs, _ = _simulated_mvs(frame)
+    wall = (f.label == WALL) & np.isfinite(f.depth)
+    mvs[wall] = 0.0  # MVS found nothing on the walls
+    view = MvsView(f.rgb, cam, t_wc)
+    refiner = DepthRefiner(RefinerConfig(sky='none'))
+    without = refiner.refine_from_mvs(view, mvs)
+    v, u = np.nonzero(wall)
+    pick = np.random.default_rng(1).choice(len(u), size=min(300, len(u)), replace=False)
+    pc = cam.backproject(np.c_[u[pick], v[pick]], f.depth[v[pick], u[pick]])
+    seeds_w = pc @ t_wc[:3, :3].T + t_wc[:3, 3]
+    seeded = refiner.refine_from_mvs(view, mvs, seeds_w=seeds_w)
+    err = lambda r: np.mean(np.abs(r.depth[wall] - f.depth[wall]) / f.depth[wall])  # noqa: E731
+    assert err(seeded) < 0.5 * err(without)
+    assert (seeded.confidence[v[pick], u[pick]] >= 0.5).all()  # a seed counts as a depth sample

@@ -194,12 +194,14 @@ def test_sparse_points_give_each_keyframe_its_depth_range_and_bound_its_depth():
     assert s.depth_range(T0) == (10.0, 160.0)  # scene_depth_m x (near_ratio, far_ratio)
     assert s.next_job(flush=True).plausible is None
     ground = np.c_[rng.uniform(-30, 40, 500), rng.uniform(-30, 30, 500), rng.uniform(-2, 2, 500)]
-    s.set_points(np.r_[ground, [[np.nan, 0.0, 0.0]]])  # non-finite points are ignored
+    s.set_points(np.r_[ground, [[np.nan, 0.0, 0.0]]], {T0: ground[:7]})  # non-finite points are ignored
     near, far = s.depth_range(T0)
     assert 0.75 * 48 <= near <= 0.75 * 49.5  # percentiles 1 / 99 of the depths, times 0.75 / 1.5
     assert 1.5 * 50.5 <= far <= 1.5 * 52
     job = s.next_job(flush=True)
     assert job.plausible == job.depth_range == s.depth_range(job.stamp)
+    assert job.stamp == T0
+    np.testing.assert_array_equal(job.seeds_w, ground[:7])  # the points this keyframe observed
     s.set_points(np.zeros((0, 3)))  # none: back to the configured rule
     assert s.depth_range(T0) == (10.0, 160.0)
     with pytest.raises(ValueError, match=r'points_w must be Px3, got shape \(4,\)'):
