@@ -648,3 +648,25 @@ def test_pixels_no_view_covers_take_the_superpixels_that_failed_only_coverage() 
     out = NovelViewRenderer(noisy, cfg).render(t_wn, camera)
     none = NovelViewRenderer(noisy, RenderConfig(n_segments=100, coverage_px=None)).render(t_wn, camera)
     assert out.valid.mean() >= none.valid.mean() - 0.01
+
+
+def test_small_inner_holes_are_filled_and_the_border_and_large_ones_are_not() -> None:
+    from ibr_ros.core.render.renderer import fill_small_holes
+
+    h, w = 60, 80
+    rgb = np.zeros((h, w, 3), np.uint8) + np.uint8(120)
+    valid = np.ones((h, w), bool)
+    source = np.full((h, w), 3, np.int16)
+    depth = np.full((h, w), 7.0, np.float32)
+    valid[10:12, 10:13] = False  # a crack of 6 px
+    valid[30:50, 30:60] = False  # a hole of 600 px: missing scene
+    valid[0:3, 70:75] = False  # at the border: beyond what the views see
+    for a in (rgb, source, depth):
+        a[~valid] = 0
+    assert fill_small_holes(rgb, valid, source, depth, max_px=256) == 6
+    assert valid[10:12, 10:13].all()
+    assert np.abs(rgb[10:12, 10:13].astype(int) - 120).max() <= 2  # inpainted
+    assert (source[10:12, 10:13] == 3).all()
+    assert (depth[10:12, 10:13] == 7.0).all()
+    assert not valid[30:50, 30:60].any()
+    assert not valid[0:3, 70:75].any()
