@@ -85,7 +85,9 @@ def test_output_bag_topics_counts_and_stamps(processed):
     assert durability == expected
     counts = {t: len(v) for t, v in msgs.items()}
     keyframe_topics = [
-        t for k, (t, _) in OUT_TOPICS.items() if k in ('image', 'camera_info', 'pose', 'depth', 'depth_info')
+        t
+        for k, (t, _) in OUT_TOPICS.items()
+        if k in ('image', 'camera_info', 'pose', 'depth', 'depth_info', 'confidence')
     ]
     assert counts == {**dict.fromkeys(keyframe_topics, n), '/novel_view/query': 3,
                       '/novel_view/image': answered, '/novel_view/camera_info': answered}  # fmt: skip
