@@ -15,6 +15,7 @@ graph for its inputs' publishers, converts messages and publishes.
 from __future__ import annotations
 
 import sys
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
@@ -27,7 +28,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
-from ibr_ros.core.flight.keyframes import IntervalSelector, KeyframeSelector, blur_score, target_baseline
+from ibr_ros.core.flight.keyframes import (
+    Decision,
+    IntervalSelector,
+    KeyframeSelector,
+    Pick,
+    blur_px,
+    detail_score,
+    target_baseline,
+)
 from ibr_ros.core.flight.status import IMAGE_TRANSPORTS, FlightStatus, PoseSource
 from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER
 from ibr_ros.nodes.common import (
@@ -86,6 +95,8 @@ class FrameSubsampler(Node):
         )
         self.frames_seen = 0
         self.keyframes = 0
+        self.decisions: Counter[str] = Counter()  # with poses: frames per final Decision.reason
+        self._held: tuple[int, np.ndarray, CameraInfo, tuple[np.ndarray, str]] | None = None  # 'held'
         self.camera = 'waiting'
         self._images = self._images_at_tick = 0  # image messages handled, at the last graph tick
         info = lambda m: (m, msg_utils.camera_info_to_pinhole(m))  # noqa: E731
@@ -148,6 +159,9 @@ class FrameSubsampler(Node):
             self.get_logger().info(f'{image} has no publisher any more: the camera stream ended')
             if self.pose_source.state == 'none':
                 self._publish_poseless(self.interval.flush())
+            elif (last := self.selector.flush()) is not None:  # a blurred last frame bridges no gap
+                self.decisions[last.reason] += 1
+                self._held = None
             self._publish_status()
 
     def _publish_status(self) -> None:
@@ -190,16 +204,32 @@ class FrameSubsampler(Node):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
-        d = self.selector.decide(stamp, pose, blur_score(image), self.decide_depth)
-        if d.keep:
-            self._publish(stamp, image, info, (pose, pose_frame))
-            self.get_logger().info(
-                f'keyframe {self.keyframes} at {stamp} ns ({d.reason}: baseline {d.baseline_m:.1f} m, '
-                f'rotation {d.rotation_deg:.1f} deg; {self.frames_seen} frames seen)'
-            )
+        d = self.selector.decide(stamp, pose, blur_px(image), self.decide_depth)
+        if d.previous is not None and self._held is not None:  # the held frame before this one
+            self._decided(*self._held, d.previous)
+        self._held = None
+        if d.reason == 'held':  # blurred, decided with the next frame
+            self._held = (stamp, image, info, (pose, pose_frame))
+            self.get_logger().debug(f'frame {stamp}: blurred ({d.blur:.1f} px), held for the next frame')
         else:
-            self.get_logger().debug(f'frame {stamp}: skipped ({d.reason})')
+            self._decided(stamp, image, info, (pose, pose_frame), d)
         self._publish_status()
+
+    def _decided(
+        self, stamp: int, image: np.ndarray, info: CameraInfo, pose: tuple[np.ndarray, str], d: Decision
+    ) -> None:
+        """Count the final decision ``d`` of a frame with a pose; publish the frame if kept."""
+        self.decisions[d.reason] += 1
+        if not d.keep:
+            self.get_logger().debug(f'frame {stamp}: skipped ({d.reason}, blur {d.blur:.1f} px)')
+            return
+        self._publish(stamp, image, info, pose)
+        why = 'blurred, kept for overlap' if d.reason == 'overlap' else d.reason
+        self.get_logger().info(
+            f'keyframe {self.keyframes} at {stamp} ns ({why}: baseline {d.baseline_m:.1f} m, '
+            f'rotation {d.rotation_deg:.1f} deg, blur {d.blur:.1f} px; {self.frames_seen} frames '
+            f'seen, {self.decisions["blurred"]} dropped as blurred)'
+        )
 
     def _frame_without_pose(self, stamp: int, partial: dict) -> None:
         """Image and camera_info of ``stamp`` are there, its pose is not (yet)."""
@@ -237,15 +267,24 @@ class FrameSubsampler(Node):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
-        self._publish_poseless(self.interval.push(stamp, blur_score(image), (image, info)))
+        blur = blur_px(image)
+        if blur > self.config.max_blur_px > 0:
+            self.get_logger().debug(f'frame {stamp}: blurred ({blur:.1f} px)')
+        self._publish_poseless(self.interval.push(stamp, blur, (image, info), detail=detail_score(image)))
         self._publish_status()
 
-    def _publish_poseless(self, chosen: list[tuple[int, tuple[np.ndarray, CameraInfo]]]) -> None:
-        for stamp, (image, info) in chosen:
-            self._publish(stamp, image, info, None)
+    def _publish_poseless(self, chosen: list[Pick[tuple[np.ndarray, CameraInfo]]]) -> None:
+        for pick in chosen:
+            image, info = pick.item
+            self._publish(pick.stamp, image, info, None)
+            why = (
+                f'the sharpest frame of its {self.poseless_interval:g} s window'
+                if pick.reason == 'sharpest'
+                else 'blurred, kept for overlap: its window has no sharp frame'
+            )
             self.get_logger().info(
-                f'keyframe {self.keyframes} at {stamp} ns (no pose: the sharpest frame of its '
-                f'{self.poseless_interval:g} s window; {self.frames_seen} frames seen)'
+                f'keyframe {self.keyframes} at {pick.stamp} ns (no pose: {why}; {self.frames_seen} frames '
+                f'seen, {self.interval.rejected["blurred"]} dropped as blurred)'
             )
 
 

@@ -61,7 +61,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.bag import BagWriter, open_bag
-from ibr_ros.core.flight.keyframes import KeyframeSelector, blur_score
+from ibr_ros.core.flight.keyframes import KeyframeSelector, blur_px
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import matrix_from_rt
 from ibr_ros.core.render.renderer import NovelViewRenderer, SourceView
@@ -265,7 +265,7 @@ def test_frame_subsampler_survives_1000_bad_messages(repo, bag, capfd):
         expected = [
             f['stamp']
             for f in frames
-            if selector.decide(f['stamp'], f['pose'], blur_score(f['rgb']), node.scene_depth or None).keep
+            if selector.decide(f['stamp'], f['pose'], blur_px(f['rgb']), node.scene_depth or None).keep
         ]
         assert h.wait(lambda: all(len(b) >= len(expected) for b in keyframes.values()), 20), (
             {k: len(b) for k, b in keyframes.items()},

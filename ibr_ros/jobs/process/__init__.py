@@ -5,16 +5,16 @@
 The same core code as the nodes, run synchronously in bag-time order (deterministic):
 
 1. subsample: camera image (``Image`` or ``CompressedImage``), ``CameraInfo`` and pose
-   (``PoseStamped`` or ``Odometry``) matched by identical header stamps, then blur score +
-   :class:`~ibr_ros.core.flight.keyframes.KeyframeSelector` with the frame_subsampler's parameters, frame
-   by frame as live; or, with its ``target_keyframes`` > 0 (``ProcessOptions.target_keyframes``
-   overrides it) on a bag with poses, :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the
-   whole flight: the same blur scores, ``KeyframeConfig`` and ``scene_depth_m``, with
-   ``baseline_ratio`` and ``min_baseline_m`` scaled by the common factor that gives about
-   ``target_keyframes`` (the frame_subsampler's ``expected_path_m`` is not used: the flight is
-   known). Two passes over the bag: stamps, poses and blur scores of every frame, then the chosen
-   frames' images (no other image decoded); the summary's ``keyframe_selection`` gives the method,
-   and for a target the count and the scale;
+   (``PoseStamped`` or ``Odometry``) matched by identical header stamps, then blur
+   (:func:`~ibr_ros.core.flight.keyframes.blur_px`) + :class:`~ibr_ros.core.flight.keyframes.KeyframeSelector`
+   with the frame_subsampler's parameters, frame by frame as live; or, with its ``target_keyframes``
+   > 0 (``ProcessOptions.target_keyframes`` overrides it) on a bag with poses,
+   :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the whole flight: the same blur,
+   ``KeyframeConfig`` and ``scene_depth_m``, with ``baseline_ratio`` and ``min_baseline_m`` scaled by
+   the common factor that gives about ``target_keyframes`` (the frame_subsampler's
+   ``expected_path_m`` is not used: the flight is known). Two passes over the bag: stamps, poses and
+   blur of every frame, then the chosen frames' images (no other image decoded); the summary's
+   ``keyframe_selection`` gives the method, and for a target the count and the scale;
 2. MVS + refine: once the whole flight is known, every keyframe (oldest first) is refined once
    with the neighbours and depth range :class:`~ibr_ros.core.depth.schedule.RefineScheduler` gives it
    (the depth_refiner's policy at the end of a flight), by
@@ -27,7 +27,8 @@ SfM mode (the depth_refiner's ``sfm_mode``; ``ProcessOptions.sfm`` forces it): a
 topic (``sfm_mode`` ``auto`` or ``always``; ``off`` refuses it), or any bag with ``sfm`` (its poses
 are then ignored). Keyframes are chosen without poses as the frame_subsampler does without poses
 (its ``pose_source`` ``auto``; ``topic`` refuses, ``none`` always): the sharpest unblurred frame of
-every ``poseless_interval_s`` window (:class:`~ibr_ros.core.flight.keyframes.IntervalSelector`). With
+every ``poseless_interval_s`` window, or a blurred one kept for overlap
+(:class:`~ibr_ros.core.flight.keyframes.IntervalSelector`). With
 ``sfm_mode`` ``always`` on a bag with poses the keyframes are chosen by pose (as live) and their
 poses ignored. Then all keyframes (at least ``sfm_min_keyframes``) are registered together by ONE
 :meth:`~ibr_ros.core.registration.sfm_session.SfmSession.update` (images downscaled to ``sfm_max_side``; no

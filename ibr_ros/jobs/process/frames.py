@@ -23,7 +23,8 @@ from ibr_ros.core.flight.keyframes import (
     IntervalSelector,
     KeyframeSelector,
     TargetSelection,
-    blur_score,
+    blur_px,
+    detail_score,
     select_keyframes_for_target,
 )
 from ibr_ros.core.flight.stamps import StampAssembler
@@ -33,6 +34,9 @@ from ibr_ros.jobs.process.options import ProcessOptions, Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
+
+#: :attr:`~ibr_ros.core.flight.keyframes.Pick.reason` -> the keyframe's reason without poses.
+INTERVAL_REASONS = {'sharpest': 'sharpest of its window', 'overlap': 'blurred, kept for overlap'}
 
 
 @dataclass
@@ -286,22 +290,27 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
             selection: dict[str, object] = {'method': 'interval', 'interval_s': fs.poseless_interval_s}
             interval: IntervalSelector[_Frame] = IntervalSelector(fs.poseless_interval_s, fs.keyframes)
             for f in frames:
-                for _, chosen in interval.push(f.stamp, blur_score(f.rgb), f):
-                    stopped = stopped or keep(chosen, 'sharpest of its window')
+                blur = blur_px(f.rgb)
+                if blur > fs.keyframes.max_blur_px > 0:
+                    LOG.debug('frame %d ns: blurred (%.2f px)', f.stamp, blur)
+                for pick in interval.push(f.stamp, blur, f, detail=detail_score(f.rgb)):
+                    stopped = stopped or keep(pick.item, INTERVAL_REASONS[pick.reason])
                 if stopped:
                     break
             if not stopped:
-                for _, chosen in interval.flush():
-                    keep(chosen, 'sharpest of its window')
-            decisions.update({'keyframe (sharpest of its window)': len(keyframes), **interval.rejected})
+                for pick in interval.flush():
+                    keep(pick.item, INTERVAL_REASONS[pick.reason])
+            for reason in INTERVAL_REASONS.values():
+                decisions[f'keyframe ({reason})'] = sum(k.reason == reason for k in keyframes)
+            decisions.update(interval.rejected)
             decisions['not chosen in its window'] = reading.counts['frames'] - sum(decisions.values())
             decisions = +decisions  # drop zero counts
             for k in keyframes:  # poses read after the frame's image
                 if k.bag_t_wc is None and k.stamp in reading.bag_poses:
                     k.bag_t_wc = reading.bag_poses[k.stamp]
         elif fs.target_keyframes:
-            # First pass: stamps, poses and blur scores of every frame; the images are not kept.
-            seen = [(f.stamp, f.t_wc, blur_score(f.rgb)) for f in frames]
+            # First pass: stamps, poses and blur (px) of every frame; the images are not kept.
+            seen = [(f.stamp, f.t_wc, blur_px(f.rgb)) for f in frames]
             t0 = time.perf_counter()
             target = select_keyframes_for_target(
                 [s for s, _, _ in seen], [p for _, p, _ in seen], [b for _, _, b in seen],
@@ -340,12 +349,29 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
         else:
             selection = {'method': 'streaming'}
             selector = KeyframeSelector(fs.keyframes)
+            held: _Frame | None = None  # a blurred frame decided with the next one
             for f in frames:
-                d = selector.decide(f.stamp, f.t_wc, blur_score(f.rgb), scene_depth)
-                decisions[d.reason] += 1
+                d = selector.decide(f.stamp, f.t_wc, blur_px(f.rgb), scene_depth)
+                if d.previous is not None and held is not None:
+                    decisions[d.previous.reason] += 1
+                    if d.previous.keep and keep(held, d.previous.reason):
+                        stopped = True
+                        break
+                held = f if d.reason == 'held' else None
+                if held is None:
+                    decisions[d.reason] += 1
                 if d.keep and keep(f, d.reason):
                     stopped = True
                     break
+            if not stopped and (last := selector.flush()) is not None:
+                decisions[last.reason] += 1
+    overlap = sum(k.reason in ('overlap', INTERVAL_REASONS['overlap']) for k in keyframes)
+    if decisions['blurred'] or overlap:
+        LOG.info(
+            'blur: %d frames dropped as blurred (blur_px > max_blur_px %g px), %d blurred keyframes kept '
+            'for overlap (overlap_gap %g)',
+            decisions['blurred'], fs.keyframes.max_blur_px, overlap, fs.keyframes.overlap_gap,
+        )  # fmt: skip
     counts, bad = reading.counts, reading.bad
     if not keyframes:
         needed = ('image', 'camera_info') if poseless else ('image', 'camera_info', 'pose')
