@@ -20,8 +20,8 @@ no image work itself.
   keyframe comes first.
 * Depth range of the MVS sweep: ``depth_range`` ``(near, far)`` (m) when set; else, once the
   flight's sparse points are known (:meth:`RefineScheduler.set_points`, SfM), the range of the
-  points the keyframe sees (:func:`~ibr_ros.core.depth.mvs.depth_range_from_points`), which also
-  bounds the refined depth (:attr:`RefineJob.plausible`); else ``(near_ratio, far_ratio) x s``
+  points the keyframe sees (:func:`~ibr_ros.core.depth.mvs.depth_range_from_points`, margins
+  :data:`POINTS_MARGIN`), which also bounds the refined depth (:attr:`RefineJob.plausible`); else ``(near_ratio, far_ratio) x s``
   with ``s`` the scene depth at the image centre: ``scene_depth_m``
   when set, else :func:`axis_scene_depth` (oblique and orbit flights), else (parallel axes, e.g. a
   nadir survey) 12.5 x the mean distance to the two nearest keyframes (the inverse of the
@@ -124,6 +124,12 @@ class ScheduleConfig:
             raise ValueError(
                 f'near_ratio {self.near_ratio} and far_ratio {self.far_ratio} must satisfy 0 < near < far'
             )
+
+
+#: (near, far) factors on the 1st / 99th percentile depth of the sparse points a keyframe sees: the
+#: near one is generous because SfM finds few points on tree tops and roofs, the surfaces nearest a
+#: nadir camera (brighton_beach: trees up to half the flight height).
+POINTS_MARGIN = (0.5, 1.5)
 
 
 @dataclass(frozen=True, eq=False)
@@ -259,7 +265,7 @@ class RefineScheduler:
         if cfg.depth_range is not None:
             return cfg.depth_range, False
         if self._points is not None:
-            rng = depth_range_from_points(self._points, kf.view.camera, kf.view.t_wc)
+            rng = depth_range_from_points(self._points, kf.view.camera, kf.view.t_wc, margin=POINTS_MARGIN)
             if rng is not None:
                 return rng, True
         s = cfg.scene_depth_m or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
