@@ -21,8 +21,8 @@ no image work itself.
 * Depth range of the MVS sweep: ``depth_range`` ``(near, far)`` (m) when set; else, once the
   flight's sparse points are known (:meth:`RefineScheduler.set_points`, SfM), the range of the
   points the keyframe sees (:func:`~ibr_ros.core.depth.mvs.depth_range_from_points`, margins
-  :data:`POINTS_MARGIN`), which also bounds the refined depth (:attr:`RefineJob.plausible`); else ``(near_ratio, far_ratio) x s``
-  with ``s`` the scene depth at the image centre: ``scene_depth_m``
+  :data:`POINTS_MARGIN`), which also bounds the refined depth (:attr:`RefineJob.plausible`); else
+  ``(near_ratio, far_ratio) x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
   when set, else :func:`axis_scene_depth` (oblique and orbit flights), else (parallel axes, e.g. a
   nadir survey) 12.5 x the mean distance to the two nearest keyframes (the inverse of the
   frame_subsampler's 0.08 baseline ratio), with a warning to set ``scene_depth_m``.
