@@ -186,11 +186,13 @@ class _ViewCache:
     model: WarpModel
     depth: NDArray[np.float32]  # as warped: +inf sky at sky_depth_factor x the largest depth
     doubt: NDArray[np.float32]  # per superpixel: 1 - mean depth confidence
+    depth_copied: bool = False  # depth is not the view's own array (Eq. 14 sky, another dtype)
 
     @property
     def nbytes(self) -> int:
-        arrays = (self.labels, self.bbox, self.span_off, self.spans, self.depth, self.doubt)
-        return sum(a.nbytes for a in arrays) + self.model.nbytes
+        arrays = (self.labels, self.bbox, self.span_off, self.spans, self.doubt)
+        own = self.depth.nbytes if self.depth_copied else 0
+        return sum(a.nbytes for a in arrays) + own + self.model.nbytes
 
 
 def fill_small_holes(
@@ -396,8 +398,9 @@ class NovelViewRenderer:
             total = np.bincount(labels.ravel(), weights=conf.ravel(), minlength=stats.n_labels)
             doubt = (1.0 - total / np.maximum(size, 1)).astype(np.float32)
         c = _ViewCache(
-            labels.astype(np.int16) if small else labels, bbox, span_off, spans, model, depth, doubt
-        )
+            labels.astype(np.int16) if small else labels, bbox, span_off, spans, model, depth, doubt,
+            depth_copied=depth is not v.depth,
+        )  # fmt: skip
         self._cache[i] = c
         while len(self._cache) > cfg.max_cached_views:
             self._cache.popitem(last=False)
