@@ -26,21 +26,30 @@ LEVEL_WIDTH = 256
 
 @njit(cache=True)
 def _level_medians(g, d):
-    """Median (numpy's: mean of the two middle values for even counts) of valid ``d`` per level."""
+    """Median (numpy's: mean of the two middle values for even counts) of valid ``d`` per level,
+    leaving out ``g == 0`` unless no other pixel is valid."""
     g = g.ravel()
     d = d.ravel()
     cnt = np.zeros(N_LEVELS + 1, np.int64)
+    n_zero = 0
     for i in range(g.shape[0]):
         v = d[i]
         if v > 0 and v < np.inf:
-            cnt[(g[i] >> 8) + 1] += 1
+            if g[i] == 0:
+                n_zero += 1
+            else:
+                cnt[(g[i] >> 8) + 1] += 1
+    g_min = 1
+    if n_zero > 0 and cnt.sum() == 0:
+        g_min = 0
+        cnt[1] = n_zero
     for k in range(N_LEVELS):
         cnt[k + 1] += cnt[k]
     vals = np.empty(cnt[N_LEVELS], np.float64)
     fill = cnt[:N_LEVELS].copy()
     for i in range(g.shape[0]):
         v = d[i]
-        if v > 0 and v < np.inf:
+        if v > 0 and v < np.inf and g[i] >= g_min:
             lv = g[i] >> 8
             vals[fill[lv]] = v
             fill[lv] += 1
@@ -78,11 +87,15 @@ def level_medians(g: np.ndarray, d_mvs: np.ndarray) -> tuple[NDArray[np.float64]
 
     Returns ``(medians, counts)``, both of length 256: the median (numpy's definition: the mean of
     the two middle values for even counts, in float64) of the valid MVS depths whose pixel has
-    ``G // 256 == i``, NaN for an empty level, and the number of those samples.
+    ``G // 256 == i``, NaN for an empty level, and the number of those samples.  Pixels with
+    ``G = 0`` (no monocular prediction, e.g. above the horizon of the ground-plane prior) are left
+    out, unless no pixel with ``G > 0`` has a valid depth.
     """
     _check(g, d_mvs)
-    _valid(d_mvs)
-    return _level_medians(np.ascontiguousarray(g), np.ascontiguousarray(d_mvs))
+    med, counts = _level_medians(np.ascontiguousarray(g), np.ascontiguousarray(d_mvs))
+    if counts.sum() == 0:
+        raise ValueError(f'd_mvs has no valid depth (finite and > 0) among its {d_mvs.size} pixels')
+    return med, counts
 
 
 def build_lut(g: np.ndarray, d_mvs: np.ndarray) -> NDArray[np.float32]:

@@ -23,7 +23,7 @@ def pairs(samples: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray]:
 # (numpy's median of an even count: the mean of the middle two); levels 3-254 empty;
 # level 255: {1, 2, 3, 4} -> 2.5.
 HAND = [
-    (0, 10.0),
+    (1, 10.0),
     (100, 20.0),
     (255, 40.0),
     (7, 0.0),
@@ -76,6 +76,18 @@ def test_ends_are_constant():
 def test_single_level():
     g, d = pairs([(1000, 7.0), (1001, 9.0)])
     assert (build_lut(g, d) == 8.0).all()
+
+
+def test_g_zero_is_no_prediction():
+    # MVS depth where G = 0 (e.g. above the ground plane's horizon) takes no part in level 0.
+    g, d = pairs([(0, 900.0), (0, 950.0), (100, 40.0), (50 * 256, 20.0), (100 * 256, 10.0)])
+    med, counts = level_medians(g, d)
+    assert counts[0] == 1
+    assert med[0] == 40.0
+    # Only G = 0 samples: they are all there is, the table is constant.
+    g0, d0 = pairs([(0, 4.0), (0, 6.0)])
+    assert level_medians(g0, d0)[1][0] == 2
+    assert (build_lut(g0, d0) == 5.0).all()
 
 
 def test_lut_remap_is_table_lookup():
