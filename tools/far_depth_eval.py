@@ -16,7 +16,7 @@ ground-truth pixels:
 * ``beyond depth``: pixels whose true depth exceeds the largest pruned MVS depth;
 * ``all``: every non-sky pixel, next to FMM (Telea inpainting of the pruned MVS depth).
 
-Example (a low-pitch flight, about 2 minutes per backend here)::
+Example (a low-pitch flight; a few minutes here, most of it MVS)::
 
     ibr bag synth --seed 7 --pitch=-10,-4 --duration 8 --fps 2 --out /tmp/horizon_s7
     .venv/bin/python tools/far_depth_eval.py /tmp/horizon_s7 --mono plane onnx
