@@ -18,6 +18,16 @@ def _size(text: str) -> tuple[int, int]:
     return int(m[1]), int(m[2])
 
 
+def _pitch(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = sorted(float(v) for v in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'pitch must be LO,HI in degrees, got {text!r}') from None
+    if lo < -90.0 or hi >= 0.0:
+        raise argparse.ArgumentTypeError(f'pitch must lie in [-90, 0) degrees (looking down), got {text!r}')
+    return lo, hi
+
+
 def run(args: argparse.Namespace) -> int:
     from ibr_ros.cli.progress import progress_bar
     from ibr_ros.jobs.synth_bag import write_synth_bag
@@ -33,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
             fps=args.fps,
             size=args.size,
             hfov_deg=args.hfov,
+            pitch_range_deg=args.pitch,
             jpeg_quality=args.jpeg_quality,
             depth_every=args.depth_every,
             depth_mantissa_bits=args.depth_mantissa_bits,
@@ -55,6 +66,13 @@ def register(bag_sub: argparse._SubParsersAction) -> None:
     p.add_argument('--fps', type=float, default=12.0, help='frames per second')
     p.add_argument('--size', type=_size, default=(640, 360), metavar='WxH', help='image size (px)')
     p.add_argument('--hfov', type=float, default=70.0, help='horizontal field of view (deg)')
+    p.add_argument(
+        '--pitch',
+        type=_pitch,
+        default=(-60.0, -15.0),
+        metavar='LO,HI',
+        help='camera pitch range (deg, negative = down); --pitch=-12,-6 sees the horizon',
+    )
     p.add_argument('--jpeg-quality', type=int, default=90)
     p.add_argument('--depth-every', type=int, default=1, help='write ground truth every Nth frame')
     p.add_argument(

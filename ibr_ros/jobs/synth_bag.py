@@ -106,6 +106,7 @@ def write_synth_bag(
     fps: float = 12.0,
     size: tuple[int, int] = (640, 360),
     hfov_deg: float = 70.0,
+    pitch_range_deg: tuple[float, float] = (-60.0, -15.0),
     jpeg_quality: int = 90,
     depth_every: int = 1,
     depth_mantissa_bits: int = 23,
@@ -114,7 +115,11 @@ def write_synth_bag(
     scene: SceneConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> SynthBagResult:
-    """Render a flight and write it to the bag folder ``out`` (topics in the module docstring)."""
+    """Render a flight and write it to the bag folder ``out`` (topics in the module docstring).
+
+    ``pitch_range_deg`` bounds the camera pitch (degrees, negative = looking down; see
+    :func:`ibr_ros.core.synth.trajectory.make_trajectory`).
+    """
     if depth_every < 1:
         raise ValueError(f'depth_every must be >= 1, got {depth_every}')
     cfg = scene if scene is not None else SceneConfig(seed=seed)
@@ -124,7 +129,16 @@ def write_synth_bag(
     max_err = 0.0
     with BagWriter(Path(out), overwrite=overwrite) as bag:
         for i, (sample, frame) in enumerate(
-            render_flight(cfg, trajectory, duration_s, fps, size, hfov_deg, progress=progress)
+            render_flight(
+                cfg,
+                trajectory,
+                duration_s,
+                fps,
+                size,
+                hfov_deg,
+                progress=progress,
+                pitch_range_deg=pitch_range_deg,
+            )
         ):
             stamp = START_NS + i * period_ns
             header = msg_utils.make_header(stamp, FRAME_ID, flavor='rosbags')
@@ -171,14 +185,32 @@ def write_synth_bag(
                 depth_frames += 1
             frames += 1
     _write_sidecar(
-        Path(out), cfg, trajectory, duration_s, fps, size, hfov_deg, depth_every, depth_mantissa_bits
+        Path(out),
+        cfg,
+        trajectory,
+        duration_s,
+        fps,
+        size,
+        hfov_deg,
+        pitch_range_deg,
+        depth_every,
+        depth_mantissa_bits,
     )
     return SynthBagResult(Path(out), frames, depth_frames, max_err)
 
 
 def _write_sidecar(out: Path, cfg: SceneConfig, *args: object) -> None:
     """``synth.json`` beside the MCAP: the scene and flight parameters, for reproduction."""
-    names = ('trajectory', 'duration_s', 'fps', 'size', 'hfov_deg', 'depth_every', 'depth_mantissa_bits')
+    names = (
+        'trajectory',
+        'duration_s',
+        'fps',
+        'size',
+        'hfov_deg',
+        'pitch_range_deg',
+        'depth_every',
+        'depth_mantissa_bits',
+    )
     doc = {'scene': asdict(cfg), 'flight': dict(zip(names, args, strict=True)), 'labels': LABEL_NAMES}
     tmp = out / '.synth.json.tmp'
     tmp.write_text(json.dumps(doc, indent=2, sort_keys=True, default=list) + '\n')

@@ -105,6 +105,23 @@ def test_quantize_depth_bound(depth, bits):
     np.testing.assert_array_equal(quantize_depth(q, bits), q)  # idempotent
 
 
+def test_pitch_range(tmp_path):
+    out = tmp_path / 'low'
+    args = ['--duration', '1', '--fps', '2', '--size', '64x36', '--pitch=-6,-12', '--no-labels']
+    assert main(['bag', 'synth', *args, '--out', str(out)]) == 0
+    with open_bag(out) as bag:
+        poses = [msg_utils.pose_stamped_to_matrix(m.msg) for m in bag.messages([TOPICS['pose']])]
+    # The optical axis (third column) rises by sin(pitch): the orbit looks down at 12 deg, not lower.
+    pitch = np.degrees(np.arcsin([t[2, 2] for t in poses]))
+    assert len(pitch) == 2
+    assert pitch.min() >= -12 - 1e-9
+    assert pitch.max() <= -6 + 1e-9
+    assert GroundTruthRenderer(out).flight['pitch_range_deg'] == [-12.0, -6.0]
+    for bad in ('--pitch=-5', '--pitch=-10,5', '--pitch=a,b', '--pitch=-95,-10'):
+        with pytest.raises(SystemExit):
+            main(['bag', 'synth', bad, '--out', str(tmp_path / 'bad')])
+
+
 def test_bad_arguments_exit_2(tmp_path, capsys):
     assert main(['bag', 'synth', '--duration', '0', '--out', str(tmp_path / 'x')]) == 2
     assert 'must be positive' in capsys.readouterr().err

@@ -76,13 +76,15 @@ def render_flight(
     progress: Callable[[int, int], None] | None = None,
     *,
     altitude_range: tuple[float, float] = (15.0, 80.0),
+    pitch_range_deg: tuple[float, float] = (-60.0, -15.0),
     antialias: bool = True,
 ) -> Iterator[tuple[TrajectorySample, SynthFrame]]:
     """Build the scene of ``cfg``, fly ``kind`` over it and yield (pose sample, frame) per frame.
 
-    The trajectory uses ``cfg.seed`` and ``cfg.extent_m``; its altitude floor is raised by
-    :func:`safe_altitude_range` so the drone never flies through a building. ``progress(done,
-    total)`` is called after every frame.
+    The trajectory uses ``cfg.seed``, ``cfg.extent_m`` and ``pitch_range_deg`` (degrees, negative =
+    looking down; a view whose pitch is above minus half its vertical FOV sees the horizon); its
+    altitude floor is raised by :func:`safe_altitude_range` so the drone never flies through a
+    building. ``progress(done, total)`` is called after every frame.
     """
     scene = build_scene(cfg)
     camera = flight_camera(size, hfov_deg)
@@ -92,6 +94,7 @@ def render_flight(
         fps=fps,
         seed=cfg.seed,
         altitude_range=safe_altitude_range(cfg, altitude_range),
+        pitch_range_deg=pitch_range_deg,
         extent_m=cfg.extent_m,
     )
     for i, s in enumerate(samples):

@@ -1,6 +1,7 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
-"""Monocular depth remapping by the per-view lookup table (Eq. 1-4) and its two baselines."""
+"""Monocular depth remapping by the per-view lookup table (Eq. 1-4), its extrapolation beyond the
+populated levels, and the two baselines."""
 
 from __future__ import annotations
 
@@ -9,7 +10,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ibr_ros.core.depth.remap import build_lut, level_medians, linear_remap, lut_remap, median_factor_remap
+from ibr_ros.core.depth.remap import (
+    FAR_FACTOR,
+    NEAR_FACTOR,
+    build_lut,
+    level_medians,
+    linear_remap,
+    lut_remap,
+    median_factor_remap,
+)
 
 
 def pairs(samples: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray]:
@@ -19,11 +28,20 @@ def pairs(samples: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray]:
     return g, d
 
 
+def paper_lut(med: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The paper's table (Eq. 3) from the level medians, held constant beyond the populated levels."""
+    levels = np.arange(256)
+    full = counts > 0
+    d = np.interp(levels, levels[full], med[full])
+    nxt = np.append(d[1:], d[-1])
+    return ((nxt - d)[:, None] * (np.arange(256) / 256)[None, :] + d[:, None]).reshape(-1).astype(np.float32)
+
+
 # Level 0: {10, 20, 40} -> 20 (invalid samples ignored); level 1 empty; level 2: {8, 12} -> 10
 # (numpy's median of an even count: the mean of the middle two); levels 3-254 empty;
 # level 255: {1, 2, 3, 4} -> 2.5.
 HAND = [
-    (0, 10.0),
+    (1, 10.0),
     (100, 20.0),
     (255, 40.0),
     (7, 0.0),
@@ -62,20 +80,106 @@ def test_lut_by_hand():
     d254 = 10.0 + (2.5 - 10.0) * 252 / 253  # empty levels 3-254: linear over the level index
     assert lut[254 * 256] == pytest.approx(d254)
     assert lut[254 * 256 + 128] == pytest.approx(d254 + (2.5 - d254) * 0.5)
-    assert (lut[255 * 256 :] == np.float32(2.5)).all()  # level 255: no level 256, constant
+    assert lut[255 * 256] == np.float32(2.5)
+    # Beyond the anchor of the nearest level (no level 256): the inverse-depth trend, nearer.
+    beyond = lut[255 * 256 :]
+    assert (np.diff(beyond) <= 0).all()
+    assert beyond[-1] < 2.5
+    assert beyond[-1] >= NEAR_FACTOR * 1.0
 
 
-def test_ends_are_constant():
-    g, d = pairs([(3 * 256 + 10, 30.0), (3 * 256 + 20, 30.0), (10 * 256, 5.0)])
-    lut = build_lut(g, d)
-    assert (lut[: 3 * 256 + 1] == 30.0).all()  # below the first non-empty level
-    assert (lut[10 * 256 :] == 5.0).all()  # level 10 and beyond: d'_11.. = d'_10
-    assert lut[3 * 256 + 128] == pytest.approx(30.0 + (30.0 + (5.0 - 30.0) / 7 - 30.0) * 0.5)
+def trend_samples(levels, a: float, b: float, per_level: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Samples at the centre of each level with depth exactly ``1 / (a * (i + 1/2) + b)``."""
+    lv = np.repeat(np.asarray(levels), per_level)
+    return pairs([(256 * i + 128, 1.0 / (a * (i + 0.5) + b)) for i in lv])
+
+
+def test_extrapolation_follows_an_exact_inverse_depth_trend():
+    # 1/d = a (x - 10) with x = G / 256: the horizon at level 10; MVS on levels 40..120 only.
+    a = 1e-3
+    g, d = trend_samples(range(40, 121), a, -10 * a)
+    lut = build_lut(g, d).astype(np.float64)
+    x = np.arange(65536) / 256
+    d_max, d_min = float(d.max()), float(d.min())
+    cap, floor = FAR_FACTOR * d_max, NEAR_FACTOR * d_min
+    med, counts = level_medians(g, d)
+    # Inside the populated levels: the paper's table, bit for bit.
+    np.testing.assert_array_equal(
+        lut[40 * 256 : 120 * 256 + 1], paper_lut(med, counts)[40 * 256 : 120 * 256 + 1]
+    )
+    # Beyond them: the trend itself (no half-level lag), within the caps.  Above the nearest
+    # anchor the trend is behind d'_120 (placed at the level centre) for half a level: held there.
+    with np.errstate(divide='ignore'):
+        exact = 1.0 / (a * (x - 10))
+    far = (x < 40) & (exact > 0) & (exact < cap)
+    near = (x >= 120.5) & (exact > floor)
+    assert far.sum() > 3000
+    assert near.sum() > 20000
+    np.testing.assert_allclose(lut[far], exact[far], rtol=1e-6)
+    np.testing.assert_allclose(lut[near], exact[near], rtol=1e-6)
+    assert np.all(lut[(x > 120) & (x < 120.5)] == np.float32(med[120]))
+    # Past the caps, and beyond the horizon (1/d <= 0, levels 0..10): FAR_FACTOR x the largest MVS
+    # depth; NEAR_FACTOR x the smallest on the near side.
+    assert np.all(lut[(x < 40) & ~far] == np.float32(cap))
+    assert np.all(lut[(x >= 120.5) & ~near] == np.float32(floor))
+    assert lut[0] == np.float32(cap)
+
+
+def test_far_ground_beyond_the_mvs_range():
+    """A view whose MVS depth stops at 25 m: the farther half of the image follows G's trend."""
+    g, _, z = inverse_depth_view(4000.0)
+    d = np.where(z < 25, z, 0).astype(np.float32)
+    med, counts = level_medians(g, d)
+    beyond = g < 256 * np.flatnonzero(counts)[0]
+    assert beyond.mean() > 0.4
+    rel = np.abs(lut_remap(g, d) / z - 1)
+    assert rel[beyond].max() < 0.002
+    # The paper's table held constant there: the far ground squashed to the farthest MVS level.
+    held = paper_lut(med, counts)[g]
+    assert np.median(np.abs(held / z - 1)[beyond]) > 0.2
+
+
+def test_robust_to_an_outlier_level():
+    a, b = 2e-4, 1e-3
+    g, d = trend_samples(range(60, 200, 2), a, b, per_level=20)
+    g_bad, d_bad = trend_samples([100], a, b, per_level=20)
+    g2 = np.concatenate([g, g_bad], axis=1)
+    d2 = np.concatenate([d, d_bad * 3], axis=1)  # level 100 three times too far (MVS outliers)
+    x = np.arange(30 * 256, 60 * 256) / 256  # farther, the cap (2x the outliers' depth) starts
+    lut = build_lut(g2, d2)[30 * 256 : 60 * 256]
+    np.testing.assert_allclose(lut, 1.0 / (a * x + b), rtol=0.01)
 
 
 def test_single_level():
     g, d = pairs([(1000, 7.0), (1001, 9.0)])
     assert (build_lut(g, d) == 8.0).all()
+
+
+def test_two_levels_give_their_line():
+    g, d = pairs([(10 * 256 + 128, 1 / 0.02), (20 * 256 + 128, 1 / 0.04)])  # 1/d = 0.002 (x - 0.5)
+    lut = build_lut(g, d)
+    np.testing.assert_allclose(1 / lut[[5 * 256 + 128, 25 * 256 + 128]], [0.01, 0.05], rtol=1e-6)
+
+
+def test_no_trend_holds_the_ends():
+    # Depth growing with G (against the convention): no extrapolation, the paper's constant ends.
+    g, d = pairs([(3 * 256 + 10, 5.0), (3 * 256 + 20, 5.0), (10 * 256, 30.0)])
+    lut = build_lut(g, d)
+    assert (lut[: 3 * 256 + 1] == 5.0).all()
+    assert (lut[10 * 256 :] == 30.0).all()
+    assert lut[3 * 256 + 128] == pytest.approx(5.0 + (5.0 + (30.0 - 5.0) / 7 - 5.0) * 0.5)
+
+
+def test_g_zero_is_no_prediction():
+    # MVS depth where G = 0 (e.g. above the ground plane's horizon) takes no part in level 0.
+    g, d = pairs([(0, 900.0), (0, 950.0), (100, 40.0), (50 * 256, 20.0), (100 * 256, 10.0)])
+    med, counts = level_medians(g, d)
+    assert counts[0] == 1
+    assert med[0] == 40.0
+    # Only G = 0 samples: they are all there is, the table is constant.
+    g0, d0 = pairs([(0, 4.0), (0, 6.0)])
+    assert level_medians(g0, d0)[1][0] == 2
+    assert (build_lut(g0, d0) == 5.0).all()
 
 
 def test_lut_remap_is_table_lookup():
@@ -108,6 +212,9 @@ def test_monotone_medians_give_monotone_output(gs, level_depths, rnd):
     assert (np.diff(full) <= 0).all()
     lut = build_lut(g[None], d[None])
     assert (np.diff(lut) <= 0).all()
+    valid = d[d > 0]
+    assert lut.min() >= np.float32(NEAR_FACTOR * valid.min())
+    assert lut.max() <= np.float32(FAR_FACTOR * valid.max())
     out = lut_remap(g[None], d[None])[0]
     assert (np.diff(out[np.argsort(g, kind='stable')]) <= 0).all()
 
