@@ -135,10 +135,10 @@ class ShardMembership:
     is). A worker never heard from counts as alive until ``lease_s`` after the first keyframe message
     reached this one (:meth:`data_arrived`): data arriving means discovery has matched this worker with
     the graph, so a live worker's heartbeat is due by then too (under load discovery takes seconds,
-    and a lease counted from start-up would declare a live worker dead before its first heartbeat). A keyframe belongs to its
-    :func:`shard_of` worker while that one is alive, else to one of the live
-    workers, chosen by the same hash over their sorted indices (every worker with the same view of
-    who is alive picks the same one). :meth:`synced`: every worker presumed alive has been heard from
+    and a lease counted from start-up would declare a live worker dead before its first heartbeat).
+    A keyframe belongs to its :func:`shard_of` worker while that one is alive, else to one of the
+    live workers, chosen by the same hash over their sorted indices (every worker with the same view
+    of who is alive picks the same one). :meth:`synced`: every worker presumed alive has been heard from
     at least once (its heartbeat lists the keyframes whose depth it published), so this worker knows
     what is done before it refines anything. Times are seconds of one monotonic clock.
     """
