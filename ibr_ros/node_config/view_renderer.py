@@ -158,9 +158,11 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
         ),
         Param(
             'min_valid_fraction',
-            0.5,
+            0.7,
             'reply only when at least this fraction of the pixels was rendered',
             (0.0, 1.0),
+            comment='Measured (bench/README.md, Valid fraction): on the real and synthetic bags every view '
+            'at least 70 % rendered beats showing the nearest keyframe photo; below 0.7 they start to lose.',
         ),
         Param(
             'publish_incomplete',
