@@ -114,7 +114,8 @@ class ViewRenderer(Node):
         )
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
-        self.pub_status = self.create_publisher(DiagnosticArray, 'novel_view/status', reliable_qos())
+        # As deep as the query queue: one callback may refuse every query waiting (superseded) at once.
+        self.pub_status = self.create_publisher(DiagnosticArray, 'novel_view/status', reliable_qos(100))
         self.add_on_set_parameters_callback(self._on_params)
         if cfg.warmup:
             self._warmup()
