@@ -51,7 +51,7 @@ from msg_utils.pose import (
     pose_to_matrix,
     transform_stamped_to_matrix,
 )
-from msg_utils.status import pairs_to_status, status_to_pairs
+from msg_utils.status import diagnostics_to_reply, pairs_to_status, reply_to_diagnostics, status_to_pairs
 
 __all__ = [
     'CONVERSION_ERRORS',
@@ -68,6 +68,7 @@ __all__ = [
     'depth_m_to_image',
     'depth_m_to_mm',
     'depth_mm_to_m',
+    'diagnostics_to_reply',
     'fix_to_navsatfix',
     'image_to_confidence',
     'image_to_numpy',
@@ -91,6 +92,7 @@ __all__ = [
     'pinhole_to_camera_info',
     'pose_stamped_to_matrix',
     'pose_to_matrix',
+    'reply_to_diagnostics',
     'stamp_to_ns',
     'status_to_pairs',
     'transform_stamped_to_matrix',

@@ -1,16 +1,18 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
-"""``diagnostic_msgs/DiagnosticStatus`` <-> a name, a level, a message and string key-values."""
+"""``diagnostic_msgs/DiagnosticStatus`` <-> a name, a level, a message and string key-values;
+``diagnostic_msgs/DiagnosticArray`` <-> the :class:`~ibr_ros.core.render.reply.ReplyStatus` of a query."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
 
+from ibr_ros.core.render.reply import ReplyStatus
 from msg_utils.errors import MessageError
-from msg_utils.flavor import Flavor, new_message
+from msg_utils.flavor import Flavor, coerce_header, new_message, stamp_to_ns
 
-__all__ = ['LEVELS', 'pairs_to_status', 'status_to_pairs']
+__all__ = ['LEVELS', 'diagnostics_to_reply', 'pairs_to_status', 'reply_to_diagnostics', 'status_to_pairs']
 
 #: DiagnosticStatus.level values by name.
 LEVELS = {'ok': 0, 'warn': 1, 'error': 2, 'stale': 3}
@@ -46,3 +48,40 @@ def status_to_pairs(msg: Any) -> list[tuple[str, str]]:
     if values is None:
         raise MessageError(f'{type(msg).__name__} is not a DiagnosticStatus (no values field)')
     return [(str(kv.key), str(kv.value)) for kv in values]
+
+
+def reply_to_diagnostics(
+    status: ReplyStatus, header: Any = None, *, name: str, flavor: Flavor = 'rclpy'
+) -> Any:
+    """A ``DiagnosticArray`` stamped by ``header`` (the query's) holding one ``DiagnosticStatus`` named
+    ``name`` with ``status``'s level, message and key-values."""
+    return new_message(
+        'diagnostic_msgs/msg/DiagnosticArray',
+        flavor,
+        header=coerce_header(header, flavor),
+        status=[
+            pairs_to_status(
+                name, status.to_pairs(), message=status.message, level=status.level, flavor=flavor
+            )
+        ],
+    )
+
+
+def diagnostics_to_reply(msg: Any) -> tuple[int, ReplyStatus]:
+    """``(stamp ns, status)`` of a :func:`reply_to_diagnostics` message; MessageError when it holds not
+    exactly one status, or one that is not a reply status (its level must match its result)."""
+    statuses = getattr(msg, 'status', None)
+    if statuses is None or len(statuses) != 1:
+        raise MessageError(
+            f'a reply status is a DiagnosticArray with one DiagnosticStatus, got {type(msg).__name__} with '
+            f'{"no" if statuses is None else len(statuses)} statuses'
+        )
+    st = statuses[0]
+    try:
+        reply = ReplyStatus.from_pairs(status_to_pairs(st), message=str(st.message))
+    except ValueError as exc:
+        raise MessageError(f'not a reply status: {exc}') from exc
+    level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+    if level != LEVELS[reply.level]:
+        raise MessageError(f'reply status level {level} does not match its result {reply.result!r}')
+    return stamp_to_ns(msg.header.stamp), reply

@@ -3,10 +3,13 @@
 """``ibr query``: ask a running ``view_renderer`` for one novel view and save it.
 
 Publishes one ``geometry_msgs/PoseStamped`` on ``novel_view/query`` (orientation from ENU
-yaw/pitch/roll in degrees, :func:`ibr_ros.core.geometry.transforms.rotation_from_ypr`), waits for the
-``novel_view/image`` whose stamp equals the query's, writes it as PNG (atomically) and prints the
-round-trip latency. ``--width/--height/--hfov`` set the renderer's output intrinsics first (they are
-parameters of the renderer node, shared by all clients). Exit status 1 on timeout.
+yaw/pitch/roll in degrees, :func:`ibr_ros.core.geometry.transforms.rotation_from_ypr`) and waits for
+the ``novel_view/status`` whose stamp equals the query's. Answered: waits for the ``novel_view/image``
+with that stamp, writes it as PNG (atomically) and prints its size, the valid (rendered) fraction and
+the round-trip latency; an incomplete view (the renderer's ``publish_incomplete``) is saved too, with a
+warning. Refused: prints the reason and the valid fraction, writes nothing. ``--width/--height/--hfov``
+set the renderer's output intrinsics first (they are parameters of the renderer node, shared by all
+clients). Exit status 1 when refused or on timeout.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,6 +73,7 @@ def _set_intrinsics(node, args: argparse.Namespace, deadline: float) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import Image
 
@@ -83,13 +88,17 @@ def run(args: argparse.Namespace) -> int:
     try:
         node = rclpy.create_node('ibr_query')
         replies: list[Image] = []
+        statuses: list[DiagnosticArray] = []
         node.create_subscription(Image, 'novel_view/image', replies.append, reliable_qos())
+        node.create_subscription(DiagnosticArray, 'novel_view/status', statuses.append, reliable_qos())
         pub = node.create_publisher(PoseStamped, 'novel_view/query', reliable_qos())
         deadline = time.monotonic() + args.timeout
         _set_intrinsics(node, args, deadline)
-        # Wait until the renderer's query reader and reply writer are both matched (no fixed sleeps).
+        # Wait until the renderer's query reader and reply writers are all matched (no fixed sleeps).
         while time.monotonic() < deadline and (
-            pub.get_subscription_count() == 0 or node.count_publishers('novel_view/image') == 0
+            pub.get_subscription_count() == 0
+            or node.count_publishers('novel_view/image') == 0
+            or node.count_publishers('novel_view/status') == 0
         ):
             rclpy.spin_once(node, timeout_sec=0.05)
         if pub.get_subscription_count() == 0:
@@ -99,22 +108,37 @@ def run(args: argparse.Namespace) -> int:
         stamp = node.get_clock().now().nanoseconds
         t0 = time.perf_counter()
         pub.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=args.frame))
-        reply = None
-        while reply is None and time.monotonic() < deadline:
+
+        def mine(box: list) -> Any:
+            return next((m for m in box if msg_utils.stamp_to_ns(m.header.stamp) == stamp), None)
+
+        status = reply = None
+        while time.monotonic() < deadline and (status is None or (status[1].published and reply is None)):
             rclpy.spin_once(node, timeout_sec=0.02)
-            reply = next((m for m in replies if msg_utils.stamp_to_ns(m.header.stamp) == stamp), None)
+            if status is None and (msg := mine(statuses)) is not None:
+                status = msg_utils.diagnostics_to_reply(msg)
+            reply = mine(replies)
         latency = time.perf_counter() - t0
+        if status is None:
+            print(f'ibr query: no reply within {args.timeout:g} s (no novel_view/status for the query)',
+                  file=sys.stderr)  # fmt: skip
+            return 1
+        st = status[1]
+        share = f'{st.valid_fraction:.1%} rendered (min_valid_fraction {st.min_valid_fraction:g})'
+        if not st.published:
+            detail = f'only {share}' if st.reason == 'incomplete' else f'{st.message}; {share}'
+            print(f'ibr query: refused ({st.reason}): {detail}', file=sys.stderr)
+            return 1
         if reply is None:
-            print(
-                f'ibr query: no reply within {args.timeout:g} s (the renderer logs why: no model yet, pose '
-                'outside the captured area, too little of the view rendered, ...)',
-                file=sys.stderr,
-            )
+            print(f'ibr query: the status says answered, but no image came within {args.timeout:g} s',
+                  file=sys.stderr)  # fmt: skip
             return 1
         _save_png(out, msg_utils.image_to_rgb(reply))
-        print(f'{out}: {reply.width}x{reply.height}, round trip {1e3 * latency:.1f} ms')
+        print(f'{out}: {reply.width}x{reply.height}, {share}, round trip {1e3 * latency:.1f} ms')
+        if st.result == 'incomplete':
+            print(f'ibr query: warning: an incomplete view ({st.message})', file=sys.stderr)
         return 0
-    except TimeoutError as exc:
+    except (TimeoutError, msg_utils.MessageError) as exc:
         print(f'ibr query: {exc}', file=sys.stderr)
         return 1
     finally:

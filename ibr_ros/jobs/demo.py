@@ -7,7 +7,8 @@ Starts bag_player, frame_subsampler, depth_refiner and view_renderer as separate
 replays the bag, waits until the frame_subsampler's ``keyframes/status`` says it has seen every
 frame of the bag and the camera stream ended, and every keyframe it counted has its refined depth
 (nothing is decided on a timer), then sends
-novel-view queries along a path between the keyframes and writes into ``out``:
+novel-view queries along a path between the keyframes (each waited for until its
+``novel_view/status`` and, when answered, its view arrived) and writes into ``out``:
 ``novel_views/query_NN.png`` (ground truth | rendered), ``depth/keyframe_NN.png`` (image | refined
 depth | ground-truth depth), ``logs/<node>.log``, ``summary.json`` and ``summary.md`` (timings,
 depth error and rephotography error against the exact re-rendered ground truth).
@@ -53,13 +54,14 @@ def run_demo(
     set depend on the machine's load.
     """
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticStatus
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, Image
 
     from ibr_ros.bag import open_bag
     from ibr_ros.core.flight.status import FlightStatus
+    from ibr_ros.core.render import ReplyStatus
     from ibr_ros.graph import claim_domain, wait_for_subsampler
 
     bag, out = Path(bag), Path(out)
@@ -128,6 +130,17 @@ def run_demo(
             CameraInfo, 'novel_view/camera_info', lambda m: infos.__setitem__(stamp_of(m), m), 10
         )
         node.create_subscription(Image, 'novel_view/image', on_reply, 10)
+        statuses: dict[int, ReplyStatus] = {}
+
+        def on_reply_status(m: DiagnosticArray) -> None:
+            try:
+                stamp, st = msg_utils.diagnostics_to_reply(m)
+            except msg_utils.MessageError as exc:
+                LOG.warning('novel_view/status: %s', exc)
+                return
+            statuses[stamp] = st
+
+        status_sub = node.create_subscription(DiagnosticArray, 'novel_view/status', on_reply_status, 10)
         query_pub = node.create_publisher(PoseStamped, 'novel_view/query', 10)
         graph.start()
         print(
@@ -157,16 +170,26 @@ def run_demo(
         stamps = sorted(s for s, (img, pose) in keyframes.items() if img is not None and pose is not None)
         path = interpolate_path([keyframes[s][1] for s in stamps], n_queries)
         results: list[dict[str, object]] = []
-        while query_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+
+        def waiting(stamp: int) -> bool:  # for the query's status, then for the view it announces
+            if stamp not in statuses:
+                return True
+            return statuses[stamp].published and (stamp not in replies or stamp not in infos)
+
+        while time.monotonic() < deadline and (
+            query_pub.get_subscription_count() == 0 or status_sub.get_publisher_count() == 0
+        ):
             rclpy.spin_once(node, timeout_sec=0.05)
         for k, t_wc in enumerate(path):
             stamp = 1_000_000_000 + k
             sent = time.monotonic()
             query_pub.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id='map'))
-            while (stamp not in replies or stamp not in infos) and time.monotonic() - sent < 30.0:
+            while waiting(stamp) and time.monotonic() - sent < 30.0:
                 rclpy.spin_once(node, timeout_sec=0.02)
-            if stamp not in replies:
-                results.append({'query': k, 'answered': False})
+            st = statuses.get(stamp)
+            if stamp not in replies or st is None or st.result != 'answered':
+                results.append({'query': k, 'answered': False, 'reason': st.reason if st else 'no status',
+                                'valid_fraction': st.valid_fraction if st else None})  # fmt: skip
                 continue
             rgb, received = replies[stamp]
             cam = msg_utils.camera_info_to_pinhole(infos[stamp])
@@ -174,7 +197,8 @@ def run_demo(
             sc = score(truth.rgb, rgb, valid_mask=rgb.any(axis=2), patch=7, shift=2)
             _png(out / 'novel_views' / f'query_{k:02d}.png', np.hstack([truth.rgb, rgb]))
             results.append({'query': k, 'answered': True, 'latency_ms': 1e3 * (received - sent),
-                            'auc': sc.auc, 'tail': sc.tail, 'completeness': sc.completeness})  # fmt: skip
+                            'valid_fraction': st.valid_fraction, 'auc': sc.auc, 'tail': sc.tail,
+                            'completeness': sc.completeness})  # fmt: skip
     finally:
         graph.stop()
         rclpy.try_shutdown()

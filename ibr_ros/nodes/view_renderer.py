@@ -19,14 +19,23 @@ Output intrinsics: ``width`` x ``height`` with ``hfov_deg``; each 0 takes the la
 (all three 0: the keyframe camera itself, distortion dropped). They may be changed at run time
 (``ros2 param set``, ``ibr query --width/--height/--hfov``).
 
+Every query gets exactly one ``novel_view/status`` (``diagnostic_msgs/DiagnosticArray``, reliable,
+the query's stamp, published after the image if there is one) holding one ``DiagnosticStatus``
+(:class:`~ibr_ros.core.render.reply.ReplyStatus`): level OK ``answered``, WARN ``incomplete`` or
+ERROR ``refused`` (no image), the reason, the rendered fraction ``valid_fraction``, the views used
+and the render time, so that a client never waits for an image that will not come and never takes
+a torn view for a good one. A query is answered only when at least ``min_valid_fraction`` of the
+pixels were rendered (the default is measured: ``bench/README.md``, section Valid fraction); a
+view below it is not published (refused, reason ``incomplete``) unless ``publish_incomplete`` is
+set, then it is published and its status says ``incomplete``.
+
 Queries are answered newest first: before rendering, the node takes every query already waiting in
 its subscription; each is checked (no model, another frame, invalid or unrenderable pose: counted
 by reason) and only the newest renderable one is rendered, the others counted as ``superseded`` and
-logged, so an overloaded renderer answers the latest pose instead of falling ever further behind. A query is
-answered only when at least ``min_valid_fraction`` of the pixels were rendered.
-Unanswerable queries (no model yet, invalid pose, another frame, farther than the renderer's
-distance limit, facing away from every view, too incomplete) get no reply: each is counted per
-reason and logged (throttled per reason), so a client times out.
+logged, so an overloaded renderer answers the latest pose instead of falling ever further behind.
+Refused queries (no model yet, invalid pose, another frame, farther than the renderer's distance
+limit, facing away from every view, superseded, too incomplete, a renderer error) get their status
+only: each is counted per reason and logged (throttled per reason).
 """
 
 from __future__ import annotations
@@ -36,6 +45,7 @@ import time
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -45,7 +55,7 @@ from sensor_msgs.msg import CameraInfo, Image
 import msg_utils
 from ibr_ros.core.depth.refine import known_depth
 from ibr_ros.core.geometry.camera import PinholeCamera
-from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
+from ibr_ros.core.render import NovelViewRenderer, ReplyStatus, SourceView, output_camera
 from ibr_ros.jobs.warmup import warm_up_renderer
 from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER
 from ibr_ros.nodes.common import (
@@ -67,7 +77,7 @@ class ViewRenderer(Node):
         super().__init__('view_renderer')
         cfg = VIEW_RENDERER.build(declare_table(self, VIEW_RENDERER))
         self.width, self.height, self.hfov = cfg.width, cfg.height, cfg.hfov_deg
-        self.min_valid = cfg.min_valid_fraction
+        self.policy = cfg.reply
         self.frame_id = cfg.frame_id
         self.max_keyframes = cfg.max_keyframes
         self.config = cfg.render
@@ -86,6 +96,7 @@ class ViewRenderer(Node):
         self.model_frame = ''
         self.latest_camera: PinholeCamera | None = None
         self.answered = 0
+        self.incomplete = 0  # published below min_valid_fraction (publish_incomplete)
         self.latencies: list[float] = []
         qos = model_qos()
         for msg_type, field, convert in (
@@ -108,6 +119,8 @@ class ViewRenderer(Node):
         )
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
+        # As deep as the query queue: one callback may refuse every query waiting (superseded) at once.
+        self.pub_status = self.create_publisher(DiagnosticArray, 'novel_view/status', reliable_qos(100))
         self.add_on_set_parameters_callback(self._on_params)
         if cfg.warmup:
             self._warmup()
@@ -219,69 +232,88 @@ class ViewRenderer(Node):
             if (query := self._check(taken[0])) is None:
                 continue
             if newest is not None:
-                self.unanswered(
+                self._refuse(
+                    newest[0],
                     'superseded',
-                    f'query {newest[0]} ns superseded by a newer one before it was rendered (queries '
-                    'arrive faster than they render)',
+                    f'superseded by query {query[0]} ns before it was rendered (queries arrive faster '
+                    'than they render)',
                 )
             newest = query
         if newest is not None:
             self._answer(*newest)
 
     def _check(self, msg: PoseStamped) -> tuple[int, np.ndarray, float] | None:
-        """``(stamp, T_wc, arrival)`` of a query that can be rendered; else None (counted by reason)."""
+        """``(stamp, T_wc, arrival)`` of a query that can be rendered; else None (refused)."""
         t0 = time.perf_counter()
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
         if self.latest_camera is None:
-            self.unanswered('no_model', f'query {stamp} ns: no keyframe with depth received yet')
+            self._refuse(stamp, 'no_model', 'no keyframe with depth received yet')
             return None
         frame = msg.header.frame_id or self.model_frame
         if frame != self.model_frame:
-            self.unanswered('frame', f'query {stamp} ns is in {frame!r}, the model in {self.model_frame!r}')
+            self._refuse(stamp, 'frame', f'the query is in {frame!r}, the model in {self.model_frame!r}')
             return None
         try:
             t_wc = msg_utils.pose_stamped_to_matrix(msg)
         except BAD_MESSAGE as exc:
-            self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
+            self._refuse(stamp, 'invalid_query', str(exc))
             return None
         if (reason := self.renderer.refusal(t_wc)) is not None:
-            self.unanswered('unrenderable', f'query {stamp} ns: {reason}')
+            self._refuse(stamp, 'unrenderable', reason)
             return None
         return stamp, t_wc, t0
 
+    def _refuse(self, stamp: int, reason: str, detail: str) -> None:
+        """Count and log refused query ``stamp`` and publish its status (ERROR, no image follows)."""
+        self.unanswered(reason, f'query {stamp} ns: {detail}')
+        self._publish_status(stamp, self.policy.refuse(reason, detail))
+
+    def _publish_status(self, stamp: int, status: ReplyStatus) -> None:
+        header = msg_utils.make_header(stamp, self.frame_id)
+        name = self.get_fully_qualified_name()
+        self.pub_status.publish(msg_utils.reply_to_diagnostics(status, header, name=name))
+
     def _answer(self, stamp: int, t_wc: np.ndarray, t0: float) -> None:
-        """Render and publish the reply to the query ``stamp`` that arrived at ``t0`` (perf_counter)."""
+        """Render query ``stamp`` that arrived at ``t0`` (perf_counter); publish the view if the policy
+        lets it through, and its status."""
         if self.latest_camera is None:  # _check answers no query before the first keyframe
             return
+        t1 = time.perf_counter()
         try:
             camera = output_camera(self.width, self.height, self.hfov, self.latest_camera)
             out = self.renderer.render(t_wc, camera)
         except BAD_MESSAGE as exc:
-            self.unanswered('invalid_query', f'query {stamp} ns: {exc}')
+            self._refuse(stamp, 'invalid_query', str(exc))
             return
         except Exception as exc:  # a renderer bug must not take the model down with it
-            self.unanswered('render_error', f'query {stamp} ns: {exc!r}')
+            self._refuse(stamp, 'render_error', repr(exc))
             return
         if out.reason is not None:
-            self.unanswered('unrenderable', f'query {stamp} ns: {out.reason}')
+            self._refuse(stamp, 'unrenderable', out.reason)
             return
-        frac = float(out.valid.mean())
-        if frac < self.min_valid:
-            self.unanswered(
-                'incomplete',
-                f'query {stamp} ns: only {frac:.0%} rendered (< min_valid_fraction {self.min_valid})',
-            )
+        views = [self.renderer.views[i].name for i in out.used_views]
+        status = self.policy.judge(float(out.valid.mean()), views, 1e3 * (time.perf_counter() - t1))
+        if not status.published:
+            self.unanswered('incomplete', f'query {stamp} ns: {status.message}')
+            self._publish_status(stamp, status)
             return
         header = msg_utils.make_header(stamp, self.frame_id)
         self.pub_image.publish(msg_utils.numpy_to_image(out.rgb, 'rgb8', header))
         self.pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
-        self.answered += 1
+        self._publish_status(stamp, status)
         dt = time.perf_counter() - t0
-        self.latencies.append(dt)
-        self.get_logger().info(
-            f'query {stamp} ns answered in {1e3 * dt:.0f} ms ({frac:.0%} rendered from views '
-            f'{[self.renderer.views[i].name for i in out.used_views]})'
-        )
+        if status.result == 'answered':
+            self.answered += 1
+            self.latencies.append(dt)
+            self.get_logger().info(
+                f'query {stamp} ns answered in {1e3 * dt:.0f} ms ({status.message} from views {views})'
+            )
+        else:
+            self.incomplete += 1
+            self.get_logger().warning(
+                f'query {stamp} ns: {status.message} ({self.incomplete} so far), in {1e3 * dt:.0f} ms '
+                f'from views {views}'
+            )
 
 
 def main(args: list[str] | None = None) -> int:

@@ -89,7 +89,7 @@ def test_output_bag_topics_counts_and_stamps(processed):
         for k, (t, _) in OUT_TOPICS.items()
         if k in ('image', 'camera_info', 'pose', 'depth', 'depth_info', 'confidence')
     ]
-    assert counts == {**dict.fromkeys(keyframe_topics, n), '/novel_view/query': 3,
+    assert counts == {**dict.fromkeys(keyframe_topics, n), '/novel_view/query': 3, '/novel_view/status': 3,
                       '/novel_view/image': answered, '/novel_view/camera_info': answered}  # fmt: skip
     assert counts == summary['output']['topics']
     stamps = {}
@@ -102,6 +102,15 @@ def test_output_bag_topics_counts_and_stamps(processed):
     for topic in keyframe_topics:
         assert stamps[topic] == kf_stamps
     assert stamps['/novel_view/image'] == stamps['/novel_view/query'] == stamps['/novel_view/camera_info']
+    assert stamps['/novel_view/status'] == stamps['/novel_view/query']
+    # Every query's status, as the view_renderer publishes it; the summary records the same.
+    replies = [msg_utils.diagnostics_to_reply(m) for _, m, _ in msgs['/novel_view/status']]
+    rows = summary['novel_views']
+    assert [s for s, _ in replies] == [r['stamp'] for r in rows] == stamps['/novel_view/query']
+    for (_, st), row in zip(replies, rows):
+        assert (st.result, st.reason) == (row['result'], row['reason']) == ('answered', '')
+        assert st.valid_fraction == row['valid_fraction'] >= st.min_valid_fraction
+        assert len(st.views) == len(row['views']) > 0
     assert all(kf_stamps[0] < s < kf_stamps[-1] for s in stamps['/novel_view/query'])
     assert {m.header.frame_id for _, m, _ in msgs['/novel_view/query']} == {'map'}
     # Keyframes are the input frames unchanged (rgb8), depth is REP-118 32FC1 with NaN for unknown.
@@ -123,6 +132,8 @@ def test_output_bag_topics_counts_and_stamps(processed):
     assert (cam.width, cam.height) == (320, 180)
     md = (processed / 'summary.md').read_text()
     assert 'seconds per keyframe' in md
+    fractions = [r['valid_fraction'] for r in rows]
+    assert f'**answered**: 3/3 novel views (valid fraction {min(fractions):.2f} .. {max(fractions):.2f}' in md
     assert summary['seconds_per_keyframe']['total'] > 0
     previews = sorted(p.name for p in (processed / 'previews').glob('*.png'))
     assert len(previews) == n + 3
@@ -272,14 +283,14 @@ def test_sfm_poseless_bag_registered_and_refined(sfm_processed, flight):
     assert f'**registered**: {sfm["registered"]}/6 keyframes' in first
     assert '**GPS alignment**: none' in first
     assert f'**refined**: {summary["refined"]}/{summary["keyframes"]} keyframes' in first
-    assert '**answered**: 3/3 novel views' in first
+    assert '**answered**: 3/3 novel views (valid fraction ' in first
     assert '**warnings**' in first
     msgs = _messages(sfm_processed / 'bag')
     n = summary['keyframes']
     per_keyframe = ('image', 'camera_info', 'pose', 'depth', 'depth_info')
     assert {t: len(v) for t, v in msgs.items()} == {
         **{t: n for k, (t, _) in OUT_TOPICS.items() if k in per_keyframe},
-        '/novel_view/query': 3, '/novel_view/image': 3, '/novel_view/camera_info': 3,
+        '/novel_view/query': 3, '/novel_view/image': 3, '/novel_view/camera_info': 3, '/novel_view/status': 3,
     }  # fmt: skip
     assert {m.header.frame_id for _, m, _ in msgs['/keyframes/pose'] + msgs['/novel_view/query']} == {'sfm'}
     # SfM's refined camera, undistorted: a pinhole without distortion, the same for every keyframe.

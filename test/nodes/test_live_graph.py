@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from node_harness import (
     create_publishers,
@@ -219,13 +219,15 @@ def test_compressed_only_camera_with_the_shipped_config(repo):
 
 
 def test_queries_faster_than_renders_are_superseded_and_counted(repo):
-    """50 Hz of queries for 4 s: each is answered or counted as superseded; the newest is answered."""
+    """50 Hz of queries for 4 s: each is answered or counted as superseded, and its status says which;
+    the newest is answered."""
     from ibr_ros.nodes.view_renderer import ViewRenderer
 
     frames = [f for f in shipped_frames(repo, (0, 24, 48, 72), (320, 180))]
     with in_process(ViewRenderer, repo / 'config' / 'view_renderer.yaml') as h:
         node = h.node
         replies = h.collect(Image, 'novel_view/image', reliable_qos(1000))
+        statuses = h.collect(DiagnosticArray, 'novel_view/status', reliable_qos(1000))
         pubs = h.publishers({**keyframe_topics(LATCHED), 'depth': (Image, 'keyframes/depth', LATCHED)})
         for f in frames:
             pubs['image'].publish(image_msg(f['rgb'], f['stamp']))
@@ -247,9 +249,16 @@ def test_queries_faster_than_renders_are_superseded_and_counted(repo):
         last = 10**9 + n - 1
         assert h.wait(lambda: any(msg_utils.stamp_to_ns(m.header.stamp) == last for m in replies), 60)
         assert h.wait(lambda: node.answered + node.unanswered.total == n, 30)
+        assert h.wait(lambda: len(statuses) == n, 30), len(statuses)
         superseded = node.unanswered.counts['superseded']
     assert node.answered + superseded == n, node.unanswered.counts
     assert len(replies) == node.answered
+    got = dict(map(msg_utils.diagnostics_to_reply, statuses))
+    assert sorted(got) == [10**9 + k for k in range(n)]
+    answered = {msg_utils.stamp_to_ns(m.header.stamp) for m in replies}
+    assert {s for s, st in got.items() if st.result == 'answered'} == answered
+    assert {st.reason for s, st in got.items() if s not in answered} == {'superseded'}
+    assert got[last].valid_fraction > 0.9
 
 
 # ------------------------------------------------------------------------------ processes

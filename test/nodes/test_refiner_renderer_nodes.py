@@ -6,7 +6,11 @@ The test process publishes 8 keyframes of the shipped synthetic bag (every 24th 
 all with stored ground-truth depth; latched) to two sharded refiners (``num_workers:=2``) and an
 early renderer, checks every keyframe's refined depth once against the ground truth, then queries
 the held-out frame 84 (between keyframes 72 and 96) and compares the reply with that frame's photo.
-A second renderer started after all depth was published must receive the whole model and answer.
+Every query gets its ``novel_view/status``: the held-out one answered with its valid fraction, the
+unanswerable ones refused with the reason, and the held-out pose panned 60 deg (about a fifth of it
+rendered) refused as incomplete without an image. A second renderer started after all depth was
+published (with ``publish_incomplete``) must receive the whole model, answer, and publish that
+incomplete view flagged. ``ibr query`` prints the valid fraction, or the refusal.
 
 Rephotography bar: AUC (mean shiftable-L1 error, 0..255) < 12. Measured: ~7 for the rendered view,
 while the nearest keyframe's photo itself scores ~24 against frame 84 and even frame 81, 0.3 s
@@ -30,6 +34,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from node_harness import (
     create_publishers,
@@ -46,8 +51,9 @@ from ibr_ros.core.depth.schedule import axis_scene_depth
 from ibr_ros.core.evaluation.rephoto import score
 from ibr_ros.core.flight.status import shard_of
 from ibr_ros.core.geometry.transforms import R_BODY_FROM_OPTICAL, matrix_from_rt, rotation_from_ypr
-from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
+from ibr_ros.core.render import NovelViewRenderer, RenderConfig, ReplyStatus, SourceView
 from ibr_ros.graph import die_with_parent
+from ibr_ros.node_config.view_renderer import VIEW_RENDERER
 from ibr_ros.nodes.common import model_qos, reliable_qos
 
 pytestmark = pytest.mark.dds
@@ -108,6 +114,19 @@ def bag(repo) -> dict[int, dict]:
     """Per frame index: stamp, rgb, camera, pose (4x4), and GT depth where stored."""
     wanted = sorted({*KEYFRAMES, HELD_OUT})
     return dict(zip(wanted, shipped_frames(repo, wanted)))
+
+
+def _panned(t_wc: np.ndarray, deg: float) -> np.ndarray:
+    """``t_wc`` turned by ``deg`` about the camera's y axis (down in the optical frame)."""
+    a = math.radians(deg)
+    return t_wc @ matrix_from_rt(
+        np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]]), [0, 0, 0]
+    )
+
+
+def _status_of(box: list[DiagnosticArray], stamp: int) -> ReplyStatus | None:
+    """The reply status for query ``stamp`` among ``box`` (None while it has not arrived)."""
+    return next((st for s, st in map(msg_utils.diagnostics_to_reply, box) if s == stamp), None)
 
 
 def _ypr_deg(r_wc: np.ndarray) -> tuple[float, float, float]:
@@ -185,10 +204,16 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
         confidences: list[Image] = []
         replies: list[Image] = []
         late_replies: list[Image] = []
+        statuses: list[DiagnosticArray] = []
+        late_statuses: list[DiagnosticArray] = []
         node.create_subscription(Image, 'keyframes/depth', depths.append, qos)
         node.create_subscription(Image, 'keyframes/depth/confidence', confidences.append, qos)
         node.create_subscription(Image, 'novel_view/image', replies.append, reliable_qos())
         node.create_subscription(Image, 'late/image', late_replies.append, reliable_qos())
+        subs_status = [
+            node.create_subscription(DiagnosticArray, 'novel_view/status', statuses.append, reliable_qos()),
+            node.create_subscription(DiagnosticArray, 'late/status', late_statuses.append, reliable_qos()),
+        ]
         # Each refiner and the renderer subscribe to the three keyframe topics.
         assert spin_until(node, lambda: all(p.get_subscription_count() >= 3 for p in pubs.values()), 60), [
             p.text for p in procs
@@ -260,29 +285,53 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
         assert spin_until(node, lambda: all(w in procs[2].text for w in want), 30), procs[2].text
         gt_rgb = bag[HELD_OUT]['rgb']
 
-        def ask(pub, box: list[Image], t_wc: np.ndarray, stamp: int, timeout: float = 20.0):
+        def ask(pub, box: list[Image], status_box: list, t_wc: np.ndarray, stamp: int, timeout: float = 20.0):
+            """Query ``stamp``: its status and, when the status says published, its image."""
             t0 = time.perf_counter()
             pub.publish(pose_msg(t_wc, stamp))
             hit = lambda: next((m for m in box if msg_utils.stamp_to_ns(m.header.stamp) == stamp), None)  # noqa: E731
-            spin_until(node, lambda: hit() is not None, timeout)
-            return hit(), time.perf_counter() - t0
+            done = lambda: (st := _status_of(status_box, stamp)) is not None and (not st.published or hit())  # noqa: E731
+            spin_until(node, done, timeout)
+            return hit(), _status_of(status_box, stamp), time.perf_counter() - t0
 
-        assert spin_until(node, lambda: pub_query.get_subscription_count() > 0, 10)
-        reply, latency = ask(pub_query, replies, bag[HELD_OUT]['pose'], 1_000)
+        assert spin_until(
+            node,
+            lambda: pub_query.get_subscription_count() > 0 and subs_status[0].get_publisher_count() > 0,
+            10,
+        )
+        reply, status, latency = ask(pub_query, replies, statuses, bag[HELD_OUT]['pose'], 1_000)
         assert reply is not None, procs[2].text
         assert msg_utils.stamp_to_ns(reply.header.stamp) == 1_000
         assert (reply.encoding, reply.width, reply.height) == ('rgb8', 640, 360)
         s_early = score(gt_rgb, np.array(msg_utils.image_to_rgb(reply)))
         assert s_early.auc < AUC_BAR, s_early
-        latencies = [ask(pub_query, replies, bag[HELD_OUT]['pose'], 1_001 + k)[1] for k in range(5)]
+        min_valid = VIEW_RENDERER.values({})['min_valid_fraction']
+        assert (status.result, status.level, status.min_valid_fraction) == ('answered', 'ok', min_valid)
+        rendered = np.array(msg_utils.image_to_rgb(reply)).any(axis=2).mean()  # black: not rendered
+        assert status.valid_fraction == pytest.approx(rendered, abs=0.01)
+        assert status.valid_fraction > 0.95
+        assert len(status.views) == 4
+        assert set(map(int, status.views)) <= set(stamp_of)
+        latencies = [ask(pub_query, replies, statuses, bag[HELD_OUT]['pose'], 1_001 + k)[2] for k in range(5)]
 
-        # Unanswerable queries: no reply, a logged reason, the node carries on.
+        # Unanswerable queries: no image, a status saying why, a logged reason, the node carries on.
         far = bag[HELD_OUT]['pose'] @ matrix_from_rt(np.eye(3), [0.0, 0.0, -5000.0])
         nan_q = pose_msg(bag[HELD_OUT]['pose'], 2_000)
         nan_q.pose.orientation.w = float('nan')
         pub_query.publish(nan_q)
-        assert ask(pub_query, replies, far, 2_001, timeout=2.0)[0] is None
-        assert all(msg_utils.stamp_to_ns(m.header.stamp) != 2_000 for m in replies)
+        panned = _panned(bag[HELD_OUT]['pose'], 60.0)
+        for stamp, t_wc, reason in ((2_001, far, 'unrenderable'), (2_002, panned, 'incomplete')):
+            image, st, _ = ask(pub_query, replies, statuses, t_wc, stamp)
+            assert image is None
+            assert (st.result, st.reason, st.level, st.published) == ('refused', reason, 'error', False), st
+        nan_status = _status_of(statuses, 2_000)
+        assert (nan_status.result, nan_status.reason) == ('refused', 'invalid_query')
+        torn = _status_of(statuses, 2_002)
+        assert 0.05 < torn.valid_fraction < min_valid, torn
+        assert torn.views
+        assert f'{torn.valid_fraction:.0%} rendered (< min_valid_fraction {min_valid:g})' in torn.message
+        assert all(msg_utils.stamp_to_ns(m.header.stamp) < 2_000 for m in replies)
+        assert len(statuses) == 9  # one per query
 
         # A renderer started after all depth was published receives the whole model.
         remap = (
@@ -290,14 +339,31 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
             'novel_view/query:=late/query',
             'novel_view/image:=late/image',
             'novel_view/camera_info:=late/info',
+            'novel_view/status:=late/status',
         )
-        late = _node(repo, 'view_renderer', ros_env, remap=remap)
+        late = _node(repo, 'view_renderer', ros_env, 'publish_incomplete:=true', remap=remap)
         assert spin_until(node, lambda: all(w in late.text for w in want), 60), late.text
-        assert spin_until(node, lambda: pub_late.get_subscription_count() > 0, 10)
-        late_reply, _ = ask(pub_late, late_replies, bag[HELD_OUT]['pose'], 3_000)
+        assert spin_until(
+            node,
+            lambda: pub_late.get_subscription_count() > 0 and subs_status[1].get_publisher_count() > 0,
+            10,
+        )
+        late_reply, late_status, _ = ask(pub_late, late_replies, late_statuses, bag[HELD_OUT]['pose'], 3_000)
         assert late_reply is not None, late.text
+        assert late_status.result == 'answered'
         s_late = score(gt_rgb, np.array(msg_utils.image_to_rgb(late_reply)))
         assert s_late.auc < AUC_BAR, s_late
+        # publish_incomplete: the torn view is published, its status says so (WARN).
+        flagged, flagged_status, _ = ask(pub_late, late_replies, late_statuses, panned, 3_001)
+        assert flagged is not None, late.text
+        assert (flagged_status.result, flagged_status.level, flagged_status.published) == (
+            'incomplete',
+            'warn',
+            True,
+        )
+        assert flagged_status.valid_fraction == pytest.approx(torn.valid_fraction)  # the same model
+        rendered = np.array(msg_utils.image_to_rgb(flagged)).any(axis=2).mean()
+        assert rendered == pytest.approx(flagged_status.valid_fraction, abs=0.01)
 
         # `ibr query` against the early renderer (x, y, z, yaw, pitch, roll of the held-out pose).
         t = bag[HELD_OUT]['pose']
@@ -310,8 +376,21 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
                              text=True, timeout=60)  # fmt: skip
         assert run.returncode == 0, run.stdout + run.stderr
         cli_ms = float(re.search(r'round trip ([\d.]+) ms', run.stdout).group(1))
+        shown = re.search(r'640x360, ([\d.]+)% rendered \(min_valid_fraction ([\d.]+)\)', run.stdout)
+        assert shown is not None, run.stdout
+        assert float(shown.group(1)) == pytest.approx(100 * status.valid_fraction, abs=0.06)
+        assert float(shown.group(2)) == min_valid
         saved = cv2.cvtColor(cv2.imread(str(png)), cv2.COLOR_BGR2RGB)
         assert score(gt_rgb, saved).auc < AUC_BAR
+        # The panned pose (same intrinsics): refused as incomplete, with its valid fraction, no PNG.
+        ypr = [f'--{k}={v}' for k, v in zip(('yaw', 'pitch', 'roll'), _ypr_deg(panned[:3, :3]))]
+        run = subprocess.run([*IBR_QUERY, *cli[:3], *ypr, '--out', str(tmp_path / 'torn.png'), '--timeout',
+                              '30'], env=ros_env, capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert run.returncode == 1, run.stdout + run.stderr
+        assert 'ibr query: refused (incomplete): ' in run.stderr
+        cli_torn = re.search(r'only ([\d.]+)% rendered \(min_valid_fraction', run.stderr)
+        assert float(cli_torn.group(1)) == pytest.approx(100 * torn.valid_fraction, abs=0.06), run.stderr
+        assert not (tmp_path / 'torn.png').exists()
         # --width/--height/--hfov set the renderer's output intrinsics.
         small = tmp_path / 'small.png'
         run = subprocess.run([*IBR_QUERY, *cli[:-4], '--out', str(small),
@@ -319,12 +398,13 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
                              env=ros_env, capture_output=True, text=True, timeout=60)  # fmt: skip
         assert run.returncode == 0, run.stdout + run.stderr
         assert cv2.imread(str(small)).shape == (180, 320, 3)
-        # A query nobody can answer: exit status 1 and a clear message.
+        # Queries the renderer refuses: exit status 1 at once, the reason and the valid fraction.
         run = subprocess.run([*IBR_QUERY, '--x=1e6', '--y=0', '--z=50', '--out',
-                              str(tmp_path / 'no.png'), '--timeout', '3'], env=ros_env, capture_output=True,
+                              str(tmp_path / 'no.png'), '--timeout', '30'], env=ros_env, capture_output=True,
                              text=True, timeout=60)  # fmt: skip
         assert run.returncode == 1, run.stderr
-        assert 'no reply within 3 s' in run.stderr
+        assert 'ibr query: refused (unrenderable): ' in run.stderr
+        assert f'0.0% rendered (min_valid_fraction {min_valid:g})' in run.stderr
         assert not (tmp_path / 'no.png').exists()
     finally:
         rclpy.try_shutdown()
@@ -335,12 +415,16 @@ def test_refiners_and_renderers_over_dds(repo, bag, ros_env, tmp_path):
     text = procs[2].text
     assert 'rejected input (invalid_query' in text
     assert 'rejected input (unrenderable' in text
+    assert 'rejected input (incomplete' in text
+    assert 'published flagged incomplete' in late.text
     assert all('rejected input (image' in p.text and 'rejected input (pose' in p.text for p in procs[:2])
     summary = {
         'depth_s_after_publish': round(t_depth, 1),
         'refine_s_per_keyframe': [round(x, 2) for x in secs],
         'median_abs_rel': {i: round(v, 4) for i, v in sorted(rels.items())},
         'auc_early': round(s_early.auc, 2),
+        'valid_fraction_held_out': round(status.valid_fraction, 4),
+        'valid_fraction_panned_60deg': round(torn.valid_fraction, 4),
         'auc_late': round(s_late.auc, 2),
         'query_round_trip_ms': [round(1e3 * x, 1) for x in [latency, *latencies]],
         'ibr_query_round_trip_ms': cli_ms,

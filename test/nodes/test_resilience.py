@@ -24,8 +24,10 @@ expected reason, the 'rejected input' warnings are throttled (a few lines, not 1
 for the valid messages is right: the subsampler's keyframes are those its selector picks from the
 valid stream alone, the refiner's depth is close to the ground truth, and the renderer answers every
 valid query with the image an in-process renderer of the same valid keyframes gives, stamped with
-the query's stamp. The bag_player must publish only the decodable messages (byte-identical, in
-order), count and log the undecodable ones (throttled, with a total) and exit 0.
+the query's stamp, and every query, valid or not, with one ``novel_view/status``: answered with that
+render's valid fraction, or refused with the reason it was counted under. The bag_player must
+publish only the decodable messages (byte-identical, in order), count and log the undecodable ones
+(throttled, with a total) and exit 0.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from node_harness import (
     InProcess,
@@ -394,13 +397,14 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
         node = h.node
         replies = h.collect(Image, 'novel_view/image', reliable_qos())
         infos = h.collect(CameraInfo, 'novel_view/camera_info', reliable_qos())
+        statuses = h.collect(DiagnosticArray, 'novel_view/status', reliable_qos(1000))
         pubs = h.publishers({
             **keyframe_topics(model_qos()),
             'depth': (Image, 'keyframes/depth', model_qos()),
             'query': (PoseStamped, 'novel_view/query', reliable_qos()),
         })  # fmt: skip
         outs = [p for p in node.publishers if p.topic_name.startswith('/novel_view/')]
-        assert h.wait(lambda: len(outs) == 2 and all(p.get_subscription_count() > 0 for p in outs), 30)
+        assert h.wait(lambda: len(outs) == 3 and all(p.get_subscription_count() > 0 for p in outs), 30)
         capfd.readouterr()
 
         def keyframe(f: dict, stamp: int, *, cam=None, depth=None, frame_id: str = 'map') -> None:
@@ -411,6 +415,7 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
         reference = NovelViewRenderer([], node.config)  # the valid keyframes alone
         out_cam = PinholeCamera(kfs[0]['camera'].width, kfs[0]['camera'].height, kfs[0]['camera'].k)
         expected: list[tuple[int, np.ndarray]] = []  # (query stamp, image) of every valid query
+        verdicts: dict[int, tuple[str, float | None]] = {}  # query stamp -> (reason, valid fraction)
         t0 = time.monotonic()
         sent: Counter[str] = Counter()
         j = 0
@@ -431,8 +436,9 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
                     stamp = 5_000_000_000 + len(expected)
                     ref = reference.render(t_wc, out_cam)
                     assert ref.reason is None, (i, ref.reason)
-                    assert ref.valid.mean() >= node.min_valid, i
+                    assert ref.valid.mean() >= node.policy.min_valid_fraction, i
                     expected.append((stamp, ref.rgb))
+                    verdicts[stamp] = ('', float(ref.valid.mean()))
                     h.send(pubs['query'], pose_msg(t_wc, stamp))
                 kind = RND_KINDS[j % len(RND_KINDS)]
                 j += 1
@@ -459,8 +465,10 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
                     elif kind == 'query_zero_quaternion':
                         o = q.pose.orientation
                         o.x = o.y = o.z = o.w = 0.0
+                    verdicts[stamp] = (RND_REASON[kind][1], None)
                     h.send(pubs['query'], q)
         assert h.wait(lambda: len(replies) >= len(expected) and len(infos) >= len(expected), 20)
+        assert h.wait(lambda: len(statuses) >= len(verdicts), 20), (len(statuses), len(verdicts))
         assert h.alive, h.error
         seconds = time.monotonic() - t0
         counts = {'bad': Counter(node.bad.counts), 'unanswered': Counter(node.unanswered.counts)}
@@ -480,6 +488,15 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
     for m, (_, rgb) in zip(replies, expected):
         assert (m.encoding, m.width, m.height) == ('rgb8', 320, 180)
         np.testing.assert_array_equal(msg_utils.image_to_numpy(m), rgb)
+    got = dict(map(msg_utils.diagnostics_to_reply, statuses))
+    assert len(got) == len(statuses) == len(verdicts), 'one status per query'
+    for stamp, (reason, frac) in verdicts.items():
+        st = got[stamp]
+        assert st.reason == reason, (stamp, st)
+        if reason:
+            assert (st.result, st.level, st.published, st.valid_fraction) == ('refused', 'error', False, 0.0)
+        else:
+            assert (st.result, st.level, st.published, st.valid_fraction) == ('answered', 'ok', True, frac)
     check_log(log, [counts['bad'], counts['unanswered']], seconds, throttle_s)
 
 

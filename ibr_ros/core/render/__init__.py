@@ -33,6 +33,11 @@ from ibr_ros.core.render.renderer import (
     SourceView,
     output_camera,
 )
+from ibr_ros.core.render.reply import (
+    REFUSALS,
+    ReplyPolicy,
+    ReplyStatus,
+)
 from ibr_ros.core.render.superpixels import (
     SuperpixelStats,
     slic,
@@ -53,9 +58,12 @@ from ibr_ros.core.render.warp import (
 
 __all__ = [
     'PAPER_FIELDS',
+    'REFUSALS',
     'NovelViewRenderer',
     'RenderConfig',
     'Rendered',
+    'ReplyPolicy',
+    'ReplyStatus',
     'SourceView',
     'SuperpixelStats',
     'WarpModel',

@@ -50,11 +50,14 @@ Output folder: ``bag/`` (ROS 2 mcap bag, written atomically) with the graph's to
 ``/keyframes/image`` (rgb8; undistorted in SfM mode), ``/keyframes/camera_info``,
 ``/keyframes/pose`` (the bag's poses, or SfM's in frame ``map``/``sfm``), ``/keyframes/depth``
 (32FC1 metres or ``sfm`` units, NaN unknown, REP-118; sky at 2 x the largest MVS depth, Eq. 14),
-``/keyframes/depth/camera_info``, ``/novel_view/query`` (PoseStamped) and, for answered queries,
-``/novel_view/image`` (rgb8) + ``/novel_view/camera_info`` with the query's stamp (the midpoint of
-its two keyframes' stamps); log time = header stamp. ``previews/*.png``;
-``summary.json`` and ``summary.md`` (counts, timings, seconds per keyframe, the SfM statistics
-and, for a synthetic bag with ``synth.json``, depth and rephotography errors against the exact
+``/keyframes/depth/camera_info``, ``/novel_view/query`` (PoseStamped), for every query its
+``/novel_view/status`` (DiagnosticArray, as the view_renderer's: answered or refused and why, the
+valid fraction) and, for answered queries (and incomplete ones with ``publish_incomplete``),
+``/novel_view/image`` (rgb8) + ``/novel_view/camera_info``, all with the query's stamp (the midpoint
+of its two keyframes' stamps); log time = header stamp. ``previews/*.png`` (each novel view labelled
+with its valid fraction); ``summary.json`` (``novel_views``: every query's status) and
+``summary.md`` (counts, timings, seconds per keyframe, the SfM statistics, the novel views' valid
+fractions and, for a synthetic bag with ``synth.json``, depth and rephotography errors against the exact
 ground truth; in SfM mode only when the bag has poses, after a similarity fit of the SfM camera
 centres to them: depths are scaled by its scale, novel view poses moved by it).
 """
@@ -70,6 +73,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ibr_ros.core.render import ReplyStatus
 from ibr_ros.errors import UserError
 from ibr_ros.jobs.eval_depth import write_atomic
 from ibr_ros.jobs.process.evaluate import evaluate_ground_truth
@@ -179,6 +183,7 @@ def process_bag(
             'views_requested': len(views),
             'views_answered': len(answered),
             'unanswered': {str(v.stamp): v.reason for v in views if v.rgb is None},
+            'novel_views': [_view_row(v.stamp, v.status) for v in views if v.status is not None],
             'render': render_info,
             'render_ms_median': float(np.median([1e3 * v.render_s for v in views])) if views else None,
             'output': {'bag': str(out / 'bag'), 'topics': topic_counts},
@@ -202,6 +207,19 @@ def process_bag(
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return summary
+
+
+def _view_row(stamp: int, st: ReplyStatus) -> dict[str, object]:
+    """A novel view's entry in the summary: its status, as the view_renderer's ``novel_view/status``."""
+    return {
+        'stamp': stamp,
+        'result': st.result,
+        'reason': st.reason,
+        'valid_fraction': st.valid_fraction,
+        'message': st.message,
+        'views': list(st.views),
+        'render_ms': st.render_ms,
+    }
 
 
 #: What ``ibr process`` writes into its output folder.

@@ -141,7 +141,11 @@ def evaluate_ground_truth(
                 view_rows.append({'view': j, 'stamp': v.stamp, 'auc': s.auc, 'tail': s.tail,
                                   'median': s.median, 'completeness': s.completeness})  # fmt: skip
         if v.rgb is not None:
-            tiles.append(_label(cv2.cvtColor(v.rgb, cv2.COLOR_RGB2BGR), f'novel view {j}'))
+            label = f'novel view {j}'
+            if v.status is not None:
+                flag = ', INCOMPLETE' if v.status.result == 'incomplete' else ''
+                label += f': {v.status.valid_fraction:.0%} rendered{flag}'
+            tiles.append(_label(cv2.cvtColor(v.rgb, cv2.COLOR_RGB2BGR), label))
         if tiles:
             _png(previews / f'novel_view_{j:03d}.png', np.hstack(tiles))
         if progress is not None:

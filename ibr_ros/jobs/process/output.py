@@ -33,6 +33,7 @@ OUT_TOPICS = {
     'query': ('/novel_view/query', 'geometry_msgs/msg/PoseStamped'),
     'view': ('/novel_view/image', 'sensor_msgs/msg/Image'),
     'view_info': ('/novel_view/camera_info', 'sensor_msgs/msg/CameraInfo'),
+    'view_status': ('/novel_view/status', 'diagnostic_msgs/msg/DiagnosticArray'),
 }
 
 
@@ -62,10 +63,13 @@ def write_bag(
     for v in views:
         query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)
         events.append((v.stamp, 5, 'query', query))
+        header = msg_utils.make_header(v.stamp, cfg.viewing.frame_id, **rb)
         if v.rgb is not None and v.camera is not None:
-            header = msg_utils.make_header(v.stamp, cfg.viewing.frame_id, **rb)
             events.append((v.stamp, 6, 'view', msg_utils.numpy_to_image(v.rgb, 'rgb8', header, **rb)))
             events.append((v.stamp, 7, 'view_info', msg_utils.pinhole_to_camera_info(v.camera, header, **rb)))
+        if v.status is not None:
+            status = msg_utils.reply_to_diagnostics(v.status, header, name='/view_renderer', **rb)
+            events.append((v.stamp, 8, 'view_status', status))
     events.sort(key=lambda e: (e[0], e[1]))
     counts: Counter = Counter()
     with BagWriter(path) as writer:
@@ -201,7 +205,7 @@ def _first_lines(s: dict) -> list[str]:
         lines.append(f"- **poses**: the bag's ({s['topics']['pose']}) for all {n} keyframes")
     lines += [
         f'- **refined**: {s["refined"]}/{n} keyframes',
-        f'- **answered**: {s["views_answered"]}/{s["views_requested"]} novel views',
+        f'- **answered**: {s["views_answered"]}/{s["views_requested"]} novel views{_fractions(s)}',
     ]
     warnings = []
     if sfm is not None:
@@ -209,12 +213,26 @@ def _first_lines(s: dict) -> list[str]:
     warnings += refine_warnings(s.get('refine') or {})
     unusable = (s.get('render') or {}).get('unusable_views', {})
     warnings += [f'keyframe {st} ns not rendered from: {why}' for st, why in unusable.items()]
-    warnings += [f'novel view {st} ns not answered: {why}' for st, why in s.get('unanswered', {}).items()]
+    for v in s.get('novel_views', []):
+        if v['result'] != 'answered':
+            what = 'published incomplete' if v['result'] == 'incomplete' else 'not answered'
+            warnings.append(f'novel view {v["stamp"]} ns {what}: {v["reason"]}: {v["message"]}')
     if warnings:
         lines += [f'- **warnings** ({len(warnings)}):', *(f'  - {w}' for w in warnings)]
     else:
         lines.append('- **warnings**: none')
     return lines
+
+
+def _fractions(s: dict) -> str:
+    """`` (valid fraction min .. max, median m)`` of the rendered novel views; '' when none was."""
+    rendered = [
+        v for v in s.get('novel_views', []) if v['result'] != 'refused' or v['reason'] == 'incomplete'
+    ]
+    fr = [v['valid_fraction'] for v in rendered]
+    if not fr:
+        return ''
+    return f' (valid fraction {min(fr):.2f} .. {max(fr):.2f}, median {float(np.median(fr)):.2f})'
 
 
 def json_default(value: object) -> object:

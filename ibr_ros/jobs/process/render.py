@@ -11,7 +11,7 @@ import numpy as np
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.path import interpolate_path, path_stamps
-from ibr_ros.core.render import NovelViewRenderer, SourceView, output_camera
+from ibr_ros.core.render import NovelViewRenderer, ReplyStatus, SourceView, output_camera
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
@@ -19,7 +19,8 @@ from ibr_ros.jobs.process.params import ProcessConfigs
 
 @dataclass
 class NovelView:
-    """One query along the path: ``stamp`` (ns), pose, and the reply (None when unanswered)."""
+    """One query along the path: ``stamp`` (ns), pose, its status (the view_renderer's
+    ``novel_view/status``) and the published view (None when refused; ``reason`` says why)."""
 
     stamp: int
     t_wc: np.ndarray
@@ -28,6 +29,7 @@ class NovelView:
     valid: np.ndarray | None = None
     reason: str | None = None
     render_s: float = 0.0
+    status: ReplyStatus | None = None
 
 
 def render_all(
@@ -65,18 +67,20 @@ def render_all(
     poses = interpolate_path([k.t_wc for k in model], n_views)
     stamps = path_stamps([k.stamp for k in model], n_views)
     views = [NovelView(s, t) for s, t in zip(stamps, poses, strict=True)]
+    policy = cfg.viewing.reply
     for j, v in enumerate(views):
         t1 = time.perf_counter()
         out = renderer.render(v.t_wc, camera)
         v.render_s = time.perf_counter() - t1
         if out.reason is not None:
-            v.reason = f'unrenderable: {out.reason}'
-        elif (frac := float(out.valid.mean())) < cfg.viewing.min_valid_fraction:
-            v.reason = (
-                f'incomplete: {frac:.0%} rendered (< min_valid_fraction {cfg.viewing.min_valid_fraction})'
-            )
+            v.status = policy.refuse('unrenderable', out.reason)
         else:
+            used = [renderer.views[i].name for i in out.used_views]
+            v.status = policy.judge(float(out.valid.mean()), used, 1e3 * v.render_s)
+        if v.status.published:
             v.camera, v.rgb, v.valid = camera, out.rgb, out.valid
+        if v.status.result != 'answered':
+            v.reason = f'{v.status.reason}: {v.status.message}'
         if progress is not None:
             progress('views', j + 1, len(views))
     info['model_frame'] = model_frame
