@@ -128,10 +128,11 @@ _MODEL = 'reliable, transient local'
 DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
     node='depth_refiner',
     summary=(
-        'MVS and refined depth for every keyframe (plane-sweep MVS, monocular depth remapped to it, '
-        'MST fusion, sky), shardable over several processes. A keyframe is refined once '
-        '`min_neighbours` source views with enough overlap and parallax are there, or with one when '
-        'the camera stream ended; keyframes without poses are registered with SfM (`sfm_mode`).'
+        'MVS and refined depth with a per-pixel confidence for every keyframe (plane-sweep MVS, '
+        'monocular depth remapped to it, MST fusion, sky as +inf), shardable over several processes. A '
+        'keyframe is refined once `min_neighbours` source views with enough overlap and parallax are '
+        'there, or with one when the camera stream ended; keyframes without poses are registered with '
+        "SfM (`sfm_mode`), whose sparse points then bound and seed each keyframe's depth."
     ),
     params=(
         Param(
