@@ -63,7 +63,7 @@ import logging
 import re
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, cast
 
@@ -74,7 +74,15 @@ from numpy.typing import NDArray
 from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError, RefinerConfig
 from ibr_ros.core.depth.sky import apply_sky_depth
-from ibr_ros.core.evaluation import SplatRenderer, UlrRenderer, psnr, shiftable_l1, ssim
+from ibr_ros.core.evaluation import (
+    SplatRenderer,
+    UlrRenderer,
+    depth_vs_points,
+    psnr,
+    shiftable_l1,
+    split_observed,
+    ssim,
+)
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.errors import UserError
@@ -114,6 +122,9 @@ ERROR_MAP_MAX = 64.0  # colour units at the top of the error-map colour scale
 ViewsFrom = Literal['auto', 'frames', 'keyframes']
 #: ``holdout_every`` when not given: every 8th of the frames of a synthetic bag, every 4th keyframe.
 DEFAULT_HOLDOUT = {'frames': 8, 'keyframes': 4}
+
+#: Fraction of each keyframe's own SfM points held back from its depth seeds to check its depth.
+CHECK_FRACTION = 0.2
 
 
 @dataclass(frozen=True)
@@ -500,6 +511,10 @@ def _evaluate_keyframes(bag: Path, out: Path, o: RephotoEvalOptions, progress: P
     gt_renderer = GroundTruthRenderer(bag) if sfm_info is None and (bag / 'synth.json').is_file() else None
     out.mkdir(parents=True, exist_ok=True)
     tick = time.perf_counter()
+    checks: dict[int, NDArray[np.float64]] = {}
+    if sparse is not None:  # a fifth of each keyframe's own SfM points checks its depth, the rest seed it
+        seeds, checks = split_observed(sparse.observed, CHECK_FRACTION, o.seed)
+        sparse = replace(sparse, observed=seeds)
     refine_info = refine_all(kept, cfg, progress, sparse)  # the held-out keyframes are nobody's neighbour
     timings['refine'] = time.perf_counter() - tick
     position = {k.stamp: i for i, k in enumerate(keyframes)}
@@ -593,6 +608,12 @@ def _evaluate_keyframes(bag: Path, out: Path, o: RephotoEvalOptions, progress: P
         why = {r.views[i].name: r.skip_reason(i) for i in range(len(r.views))}
         unusable[key] = {name: w for name, w in why.items() if w is not None}
     summary['render'] = {'sources': len(model), 'unusable': unusable}
+    if checks:
+        summary['depth_vs_sparse'] = {
+            str(position[k.stamp]): depth_vs_points(d, k.confidence, k.camera, k.t_wc, checks[k.stamp])
+            for k, d in zip(model, depths['fused'], strict=True)
+            if k.stamp in checks
+        }
     return _write_outputs(out, bag, summary, pooled, [], timings)
 
 
@@ -857,6 +878,8 @@ def _markdown(s: dict) -> str:
         rkeys,
     )
     lines += _per_holdout_lines(s)
+    if s.get('depth_vs_sparse'):
+        lines += _depth_check_lines(s['depth_vs_sparse'])
     if s['bars']:
         lines += ['', '## Quality bars (a < b)', '', '| bar | a | b | holds |', '| --- | --- | --- | --- |']
         for b in s['bars']:
@@ -920,6 +943,30 @@ def _keyframes_intro(s: dict, holes: str) -> list[str]:
     ]
     if warnings:
         lines += ['- warnings:', *(f'  - {w}' for w in warnings)]
+    return [*lines, '']
+
+
+def _depth_check_lines(rows: dict[str, dict[str, float]]) -> list[str]:
+    """Refined depth against the SfM points held back from its seeds, per keyframe."""
+    lines = [
+        f"## Refined depth against held-back SfM points ({CHECK_FRACTION:.0%} of each keyframe's own)",
+        '',
+        "confident = confidence >= 0.5; off = more than 20 % from the point's depth; deeper than 2x: "
+        'fraction of the image deeper than twice the median point depth (the height above ground of a '
+        'nadir view).',
+        '',
+        '| keyframe | points | confident off (max rel) | filled off | unknown at points | deeper than 2x |',
+        '| --- | --- | --- | --- | --- | --- |',
+    ]
+    for name, r in rows.items():
+        if not r.get('confident_points', 0) and not r.get('filled_points', 0):
+            lines.append(f'| {name} | {int(r["points"])} | - | - | - | - |')
+            continue
+        lines.append(
+            f'| {name} | {int(r["points"])} | {_fmt(r["confident_off"], 4)} of {int(r["confident_points"])} '
+            f'({_fmt(r["max_rel"], 2)}) | {_fmt(r["filled_off"], 3)} of {int(r["filled_points"])} | '
+            f'{_fmt(r["unknown_at_points"], 3)} | {_fmt(r["deeper_than_2x"], 4)} |'
+        )
     return [*lines, '']
 
 

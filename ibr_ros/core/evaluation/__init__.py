@@ -1,7 +1,8 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
-"""Evaluation only, not on the product path: rephotography error (shiftable L1, PSNR, SSIM) and the renderer
-baselines the product is measured against (point splat, ULR).
+"""Evaluation only, not on the product path: rephotography error (shiftable L1, PSNR, SSIM), the renderer
+baselines the product is measured against (point splat, ULR) and real-capture depth against held-back
+SfM points.
 """
 
 from __future__ import annotations
@@ -17,14 +18,17 @@ from ibr_ros.core.evaluation.rephoto import (
     score,
     shiftable_l1,
 )
+from ibr_ros.core.evaluation.sparse_check import depth_vs_points, split_observed
 
 __all__ = [
     'RephotoScore',
     'SplatRenderer',
     'UlrRenderer',
+    'depth_vs_points',
     'error_curve',
     'psnr',
     'score',
     'shiftable_l1',
+    'split_observed',
     'ssim',
 ]
