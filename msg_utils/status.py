@@ -6,11 +6,13 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ibr_ros.core.render.reply import ReplyStatus
 from msg_utils.errors import MessageError
 from msg_utils.flavor import Flavor, coerce_header, new_message, stamp_to_ns
+
+if TYPE_CHECKING:  # imported where used: ibr_ros.core.render loads the renderer (numba, OpenCV)
+    from ibr_ros.core.render.reply import ReplyStatus
 
 __all__ = ['LEVELS', 'diagnostics_to_reply', 'pairs_to_status', 'reply_to_diagnostics', 'status_to_pairs']
 
@@ -76,6 +78,8 @@ def diagnostics_to_reply(msg: Any) -> tuple[int, ReplyStatus]:
             f'a reply status is a DiagnosticArray with one DiagnosticStatus, got {type(msg).__name__} with '
             f'{"no" if statuses is None else len(statuses)} statuses'
         )
+    from ibr_ros.core.render.reply import ReplyStatus
+
     st = statuses[0]
     try:
         reply = ReplyStatus.from_pairs(status_to_pairs(st), message=str(st.message))

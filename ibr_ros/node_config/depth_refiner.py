@@ -337,8 +337,9 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
         Topic(
             'keyframes/depth/confidence',
             'sensor_msgs/Image',
-            'per-pixel confidence of the depth, 32FC1 in [0, 1] (>= 0.5: MVS depth confirmed by other '
-            'views; below: filled from MVS along the image MST and the monocular depth; 0: unknown); '
+            'per-pixel confidence of the depth, 32FC1 in [0, 1] (>= 0.5: MVS depth, more the better its '
+            'match and the more views confirm it, or an SfM point; below: filled along the image MST and '
+            'from the monocular depth; 0: unknown); '
             "published just before the depth, the keyframe's stamp",
             _MODEL,
         ),

@@ -562,6 +562,8 @@ class DepthRefinerNode(Node):
             self.bad('refine', f'keyframe {job.stamp} ns ({result.context}): {result.error}')
             return False
         header = msg_utils.make_header(job.stamp, self.frame_ids[job.stamp])
+        depth_msg = msg_utils.depth_m_to_image(r.depth, header)  # built before the stamp counts as published
+        conf_msg = None if r.confidence is None else msg_utils.confidence_to_image(r.confidence, header)
         with self._lock:
             first = job.stamp not in self._published
             if not first and not job.again:  # another worker's depth came (and was mirrored) meanwhile
@@ -569,9 +571,9 @@ class DepthRefinerNode(Node):
                 return True
             self._published.add(job.stamp)
             self._others.pop(job.stamp, None)
-        if r.confidence is not None:  # before the depth: a renderer has it when the depth arrives
-            self.pub_conf.publish(msg_utils.confidence_to_image(r.confidence, header))
-        self.pub_depth.publish(msg_utils.depth_m_to_image(r.depth, header))
+        if conf_msg is not None:  # before the depth: a renderer has it when the depth arrives
+            self.pub_conf.publish(conf_msg)
+        self.pub_depth.publish(depth_msg)
         info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
         if first:

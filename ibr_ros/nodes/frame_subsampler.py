@@ -162,6 +162,9 @@ class FrameSubsampler(Node):
             elif (last := self.selector.flush()) is not None:  # a blurred last frame bridges no gap
                 self.decisions[last.reason] += 1
                 self._held = None
+                self.get_logger().info(
+                    f'the last frame was blurred and bridges no gap: dropped ({last.reason})'
+                )
             self._publish_status()
 
     def _publish_status(self) -> None:

@@ -167,10 +167,14 @@ class ViewRenderer(Node):
             v = self.renderer.views[self.indices[stamp]]
             if v.confidence is not None and np.array_equal(v.confidence, value):
                 return  # a mirror's copy
-            self.confidence[stamp] = value
-            if v.depth is not None:
-                kf = {'image': v.rgb, 'camera_info': v.camera, 'pose': (v.t_wc, ''), 'depth': v.depth}
-                self._update(stamp, kf)
+            if v.depth is not None and value.shape != v.depth.shape:
+                self.bad(
+                    'size',
+                    f'keyframe {stamp} ns: confidence {value.shape[::-1]}, depth {v.depth.shape[::-1]}',
+                )
+                return
+            self.confidence[stamp] = value  # superpixels and warp model stay; only the blend weights change
+            self.renderer.set_confidence(self.indices[stamp], value)
             return
         self.confidence[stamp] = value
         while len(self.confidence) > 2 * self.max_keyframes:  # of keyframes that never came

@@ -16,6 +16,9 @@ Three kinds of pixel, in decreasing trust:
   A filled pixel is always below 0.5; one far from any MVS support, or whose propagated MVS depth
   the monocular depth contradicts, gets about ``mono_only``.
 * **Sky** (+inf): ``sky``; **unknown** (0, NaN, or depth outside the plausible range): 0.
+
+A depth sample without MVS evidence (an SfM point seeding the fusion: ``zncc`` and
+``n_consistent`` 0 there) counts as an MVS pixel with ``p = g = 0``: 0.5.
 """
 
 from __future__ import annotations

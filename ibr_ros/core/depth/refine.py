@@ -28,7 +28,7 @@ from ibr_ros.core.depth.mvs import MvsOptions, MvsResult, MvsView, compute_depth
 from ibr_ros.core.depth.prune import prune_depth
 from ibr_ros.core.depth.remap import lut_remap
 from ibr_ros.core.depth.schedule import RefineJob
-from ibr_ros.core.depth.sky import OnnxSkySegmenter, SkySpec, apply_sky_depth, erode_sky, sky_fallback
+from ibr_ros.core.depth.sky import OnnxSkySegmenter, SkySpec, erode_sky, sky_fallback
 from ibr_ros.core.geometry.plane import fit_ground_plane
 
 __all__ = [
@@ -214,7 +214,8 @@ class DepthRefiner:
         confidence; None: full). ``plausible``: (near, far) metres the view's depth can take (from
         the SfM points it sees): fused depth outside it becomes unknown (0), never a made-up value.
         ``seeds_w``: world points (Kx3) this view observed in SfM: depth samples where the pruned
-        MVS depth has none (textureless lawns, water edges), fused like MVS samples.
+        MVS depth has none (textureless lawns, water edges), fused like MVS samples (confidence 0.5:
+        no photometric or geometric MVS evidence of their own).
         """
         c = self.config
         rgb = np.asarray(view.rgb)
@@ -284,7 +285,7 @@ class DepthRefiner:
         lap('remap')
         fused, support = fuse_with_support(rgb, samples, mono, sigma=c.sigma, alpha=c.alpha)
         lap('fusion')
-        sky_depth = apply_sky_depth(fused, sky, pruned)[1]
+        sky_depth = 2.0 * float(pruned.max())  # Eq. 14's sky depth, for reference (the sky is +inf)
         final = fused.copy()
         implausible = 0
         if plausible is not None:
@@ -292,9 +293,12 @@ class DepthRefiner:
             implausible = int(np.count_nonzero(bad))
             final[bad] = 0.0
         final[sky] = np.inf
+        mvs_px = pruned > 0  # the MVS evidence of a pixel counts where its MVS depth was kept
         confidence = depth_confidence(
-            final, samples, mono, support, zncc=zncc, n_consistent=n_consistent, config=c.confidence
-        )
+            final, samples, mono, support, config=c.confidence,
+            zncc=None if zncc is None else np.where(mvs_px, zncc, 0.0),
+            n_consistent=None if n_consistent is None else np.where(mvs_px, n_consistent, 0),
+        )  # fmt: skip
         lap('sky_confidence')
         return RefinedDepth(
             depth=final,
@@ -354,8 +358,8 @@ def refine_job(refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions) -> JobRes
     context = f'{n} neighbours, MVS {m.reason or "ok"}'
     try:
         r = refiner.refine_from_mvs(
-            job.view, m.depth, zncc=m.confidence, n_consistent=m.n_consistent, plausible=job.plausible,
-            seeds_w=job.seeds_w,
+            job.view, m.depth, zncc=m.confidence, plausible=job.plausible, seeds_w=job.seeds_w,
+            n_consistent=m.n_consistent if mvs.backend == 'cpu' else None,  # COLMAP's are not counts
         )  # fmt: skip
     except RefineError as exc:
         return JobResult(

@@ -1,10 +1,11 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
-"""Refined depth of a real capture against SfM sparse points that took no part in it.
+"""Refined depth of a real capture against SfM sparse points that did not seed it.
 
 Without ground truth, the triangulated points a view observed are the reference: those held back
 from the depth seeds (:func:`split_observed`) are projected into the view and compared with the
-refined depth and its confidence (:func:`depth_vs_points`). Depth: float32 z-depth in metres, 0/NaN
+refined depth and its confidence (:func:`depth_vs_points`). They still count in the keyframe's
+depth range (all sparse points do), which is not a depth value. Depth: float32 z-depth in metres, 0/NaN
 unknown, +inf sky; poses 4x4 camera-to-world.
 """
 

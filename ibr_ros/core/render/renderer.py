@@ -82,7 +82,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numba
@@ -148,7 +148,8 @@ class Rendered:
     ``rgb`` uint8 ``(H, W, 3)`` (black where invalid); ``valid`` bool ``(H, W)``; ``source`` int16
     ``(H, W)`` index into the renderer's views of the view that supplied the pixel (-1 none);
     ``depth`` float32 ``(H, W)`` novel-view z-depth in metres of the supplying surface (superpixel
-    median depth for ``'ibr'``; 0 invalid, ``+inf`` sky); ``used_views`` the views selected for this
+    median depth for ``'ibr'``; 0 invalid; sky at its Eq. 14 depth, ``+inf`` with
+    ``sky_depth_factor`` 0); ``used_views`` the views selected for this
     query; ``skipped_views`` views left out as unusable (no depth, bad pose, nothing warpable);
     ``reason`` why nothing was rendered, else None.
     """
@@ -193,6 +194,18 @@ class _ViewCache:
         arrays = (self.labels, self.bbox, self.span_off, self.spans, self.doubt)
         own = self.depth.nbytes if self.depth_copied else 0
         return sum(a.nbytes for a in arrays) + own + self.model.nbytes
+
+
+def _doubt(
+    labels: NDArray[np.integer], n_labels: int, confidence: NDArray[np.floating] | None
+) -> NDArray[np.float32]:
+    """Per superpixel, 1 - the mean depth confidence of its pixels (0 without a confidence)."""
+    if confidence is None:
+        return np.zeros(n_labels, np.float32)
+    conf = np.clip(np.nan_to_num(np.asarray(confidence, np.float32)), 0.0, 1.0)
+    size = np.bincount(labels.ravel(), minlength=n_labels)
+    total = np.bincount(labels.ravel(), weights=conf.ravel(), minlength=n_labels)
+    return (1.0 - total / np.maximum(size, 1)).astype(np.float32)
 
 
 def fill_small_holes(
@@ -315,6 +328,16 @@ class NovelViewRenderer:
         self._update_scene_depth()
         return i
 
+    def set_confidence(self, index: int, confidence: NDArray[np.float32] | None) -> None:
+        """Give view ``index`` a new depth confidence (its superpixels and warp model stay cached)."""
+        if not 0 <= index < len(self.views):
+            raise ValueError(f'view index {index} is out of range for {len(self.views)} views')
+        view = replace(self.views[index], confidence=confidence)
+        self._check_view(index, view)
+        self.views[index] = view
+        if (c := self._cache.get(index)) is not None:
+            self._cache[index] = replace(c, doubt=_doubt(c.labels, c.model.n_labels, confidence))
+
     def replace_view(self, index: int, view: SourceView) -> None:
         """Replace view ``index`` (e.g. with refined depth); its cached data is dropped."""
         if not 0 <= index < len(self.views):
@@ -391,12 +414,7 @@ class NovelViewRenderer:
         np.cumsum(bbox[:, 3] - bbox[:, 1] + 1, out=span_off[1:])
         spans = np.empty((span_off[-1], 2), np.int16)
         row_spans(labels, bbox, span_off, spans)
-        doubt = np.zeros(stats.n_labels, np.float32)
-        if v.confidence is not None:
-            conf = np.clip(np.nan_to_num(np.asarray(v.confidence, np.float32)), 0.0, 1.0)
-            size = np.bincount(labels.ravel(), minlength=stats.n_labels)
-            total = np.bincount(labels.ravel(), weights=conf.ravel(), minlength=stats.n_labels)
-            doubt = (1.0 - total / np.maximum(size, 1)).astype(np.float32)
+        doubt = _doubt(labels, stats.n_labels, v.confidence)
         c = _ViewCache(
             labels.astype(np.int16) if small else labels, bbox, span_off, spans, model, depth, doubt,
             depth_copied=depth is not v.depth,

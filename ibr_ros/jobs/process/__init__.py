@@ -49,8 +49,8 @@ Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 par
 Output folder: ``bag/`` (ROS 2 mcap bag, written atomically) with the graph's topics and types:
 ``/keyframes/image`` (rgb8; undistorted in SfM mode), ``/keyframes/camera_info``,
 ``/keyframes/pose`` (the bag's poses, or SfM's in frame ``map``/``sfm``), ``/keyframes/depth``
-(32FC1 metres or ``sfm`` units, NaN unknown, REP-118; sky at 2 x the largest MVS depth, Eq. 14),
-``/keyframes/depth/camera_info``, ``/novel_view/query`` (PoseStamped), for every query its
+(32FC1 metres or ``sfm`` units, REP-118: NaN unknown, +inf sky), ``/keyframes/depth/camera_info``,
+``/keyframes/depth/confidence`` (32FC1 in [0, 1]), ``/novel_view/query`` (PoseStamped), for every query its
 ``/novel_view/status`` (DiagnosticArray, as the view_renderer's: answered or refused and why, the
 valid fraction) and, for answered queries (and incomplete ones with ``publish_incomplete``),
 ``/novel_view/image`` (rgb8) + ``/novel_view/camera_info``, all with the query's stamp (the midpoint

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -608,6 +609,13 @@ def test_low_depth_confidence_loses_the_blend() -> None:
     assert (out.source[20:-20, 40:-40][ok] == 1).mean() > 0.95  # the confident view is the best
     rgb = out.rgb[20:-20, 40:-40][ok].astype(float)
     assert rgb[:, 2].mean() > 2 * rgb[:, 0].mean()  # blue dominates the blend
+    r = NovelViewRenderer(sure, RenderConfig(n_segments=100))
+    r.render(t_wn, camera)
+    r.set_confidence(1, doubt[0])  # both doubted alike now: the cached superpixels stay, weights even out
+    misses = r.cache_misses
+    even = r.render(t_wn, camera)
+    assert r.cache_misses == misses
+    assert abs(even.rgb[..., 2].astype(float).mean() - even.rgb[..., 0].astype(float).mean()) < 40
     off = NovelViewRenderer(sure, RenderConfig(n_segments=100, confidence_weight_deg=0.0)).render(
         t_wn, camera
     )
@@ -644,10 +652,12 @@ def test_pixels_no_view_covers_take_the_superpixels_that_failed_only_coverage() 
         SourceView(v.rgb, (v.depth * rng.uniform(0.5, 2.0, v.depth.shape)).astype(np.float32), camera, v.t_wc)
         for v in views
     ]
-    cfg = RenderConfig(n_segments=100, coverage_px=0.1)
+    cfg = RenderConfig(n_segments=100, coverage_px=0.1, fill_holes_px=0)  # no crack filling either
     out = NovelViewRenderer(noisy, cfg).render(t_wn, camera)
-    none = NovelViewRenderer(noisy, RenderConfig(n_segments=100, coverage_px=None)).render(t_wn, camera)
+    none = NovelViewRenderer(noisy, replace(cfg, coverage_px=None)).render(t_wn, camera)
     assert out.valid.mean() >= none.valid.mean() - 0.01
+    clean = NovelViewRenderer(views, cfg).render(t_wn, camera)  # exact depth: coverage holds as before
+    assert clean.valid.mean() > 0.9
 
 
 def test_small_inner_holes_are_filled_and_the_border_and_large_ones_are_not() -> None:
