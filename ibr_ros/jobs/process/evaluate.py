@@ -115,13 +115,15 @@ def evaluate_ground_truth(
             tiles.append(_label(colour_depth(truth.depth, lo, hi), 'ground truth'))
             if depth is not None:
                 d = depth
-                ok = np.isfinite(truth.depth) & ~truth.sky & np.isfinite(d) & (d > 0)
+                ground = np.isfinite(truth.depth) & ~truth.sky
+                ok = ground & np.isfinite(d) & (d > 0)
                 rel = np.abs(d[ok] - truth.depth[ok]) / truth.depth[ok]
                 depth_rows.append({
                     'keyframe': i, 'stamp': k.stamp,
                     'median_abs_rel': float(np.median(rel)) if rel.size else None,
                     'mean_abs_rel': float(np.mean(rel)) if rel.size else None,
                     'coverage': float(ok.mean()),
+                    'false_sky': float(np.mean(np.isposinf(d[ground]))) if ground.any() else 0.0,
                 })  # fmt: skip
         _png(previews / f'keyframe_{i:03d}.png', np.hstack(tiles))
         if progress is not None:
@@ -161,6 +163,7 @@ def evaluate_ground_truth(
         'depth_median_abs_rel': mean(depth_rows, 'median_abs_rel', np.median),
         'depth_mean_abs_rel': mean(depth_rows, 'mean_abs_rel'),
         'depth_coverage_mean': mean(depth_rows, 'coverage'),
+        'depth_false_sky_mean': mean(depth_rows, 'false_sky'),  # ground refined as sky (+inf)
         'rephoto_auc_mean': mean(view_rows, 'auc'),
         'rephoto_tail_mean': mean(view_rows, 'tail'),
         'rephoto_completeness_mean': mean(view_rows, 'completeness'),
