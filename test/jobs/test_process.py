@@ -287,7 +287,7 @@ def test_sfm_poseless_bag_registered_and_refined(sfm_processed, flight):
     assert '**warnings**' in first
     msgs = _messages(sfm_processed / 'bag')
     n = summary['keyframes']
-    per_keyframe = ('image', 'camera_info', 'pose', 'depth', 'depth_info')
+    per_keyframe = ('image', 'camera_info', 'pose', 'depth', 'depth_info', 'confidence')
     assert {t: len(v) for t, v in msgs.items()} == {
         **{t: n for k, (t, _) in OUT_TOPICS.items() if k in per_keyframe},
         '/novel_view/query': 3, '/novel_view/image': 3, '/novel_view/camera_info': 3, '/novel_view/status': 3,
