@@ -58,3 +58,17 @@ def test_bad_input_names_the_argument():
         ConfidenceConfig(min_zncc=1.0)
     with pytest.raises(ValueError, match='mono_only'):
         ConfidenceConfig(mono_only=2.0)
+
+
+def test_mvs_pixels_at_a_depth_step_are_not_confident():
+    """Window matching smears the nearer surface over the farther one: MVS pixels within
+    ``edge_radius_px`` of a step of more than ``edge_step`` drop below 0.5, the others keep >= 0.5."""
+    depth = np.full((9, 12), 40.0, np.float32)
+    depth[:, 6:] = 20.0  # a roof edge
+    mvs = depth.copy()
+    c = depth_confidence(depth, mvs, depth, np.zeros_like(depth))
+    assert (c[:, 4:8] < 0.5).all()  # within 2 px of the step
+    assert (c[:, :3] == 1.0).all()
+    assert (c[:, 9:] == 1.0).all()
+    off = depth_confidence(depth, mvs, depth, np.zeros_like(depth), config=ConfidenceConfig(edge_radius_px=0))
+    assert (off == 1.0).all()
