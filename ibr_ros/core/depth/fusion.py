@@ -378,6 +378,4 @@ def fuse_with_support(
     dm = np.ascontiguousarray(d_mvs).reshape(-1)
     agg = _aggregate(order, ppos, wpar, dm, _similarity(s))
     fused = _combine(order, agg, dm, np.ascontiguousarray(d_mono).reshape(-1), a).reshape(H, W)
-    support = np.empty(H * W, np.float32)
-    support[order] = agg[:, 0]
-    return fused, support.reshape(H, W)
+    return fused, _unpermute(order, agg)[0].astype(np.float32).reshape(H, W)

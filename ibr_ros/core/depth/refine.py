@@ -142,18 +142,12 @@ def _seed_depth(
 ) -> NDArray[np.float32]:
     """Sparse z-depth (metres, 0 unknown) of ``points_w`` in ``view`` (nearest per pixel)."""
     cam = view.camera
-    t_cw = np.linalg.inv(view.t_wc)
-    pc = points_w.reshape(-1, 3) @ t_cw[:3, :3].T + t_cw[:3, 3]
+    u, v, z = cam.pixels_of(points_w, view.t_wc)
     lo, hi = plausible if plausible is not None else (0.0, np.inf)
-    pc = pc[(pc[:, 2] > lo) & (pc[:, 2] < hi)]
+    ok = (z > lo) & (z < hi)
     out = np.zeros((cam.height, cam.width), np.float32)
-    if not len(pc):
-        return out
-    u = np.rint(pc[:, 0] / pc[:, 2] * cam.fx + cam.cx).astype(np.int64)
-    v = np.rint(pc[:, 1] / pc[:, 2] * cam.fy + cam.cy).astype(np.int64)
-    ok = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-    order = np.argsort(-pc[ok, 2])  # far first: the nearest point of a pixel is written last
-    out[v[ok][order], u[ok][order]] = pc[ok, 2][order]
+    order = np.argsort(-z[ok])  # far first: the nearest point of a pixel is written last
+    out[v[ok][order], u[ok][order]] = z[ok][order]
     return out
 
 

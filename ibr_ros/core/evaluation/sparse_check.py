@@ -57,13 +57,7 @@ def depth_vs_points(
     the image with finite depth beyond twice that.
     """
     d = np.asarray(depth, np.float32)
-    t_cw = np.linalg.inv(np.asarray(t_wc, np.float64))
-    pc = np.asarray(points_w, np.float64).reshape(-1, 3) @ t_cw[:3, :3].T + t_cw[:3, 3]
-    pc = pc[pc[:, 2] > 0]
-    u = np.rint(pc[:, 0] / pc[:, 2] * camera.fx + camera.cx).astype(np.int64)
-    v = np.rint(pc[:, 1] / pc[:, 2] * camera.fy + camera.cy).astype(np.int64)
-    inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    u, v, z = u[inside], v[inside], pc[inside, 2]
+    u, v, z = camera.pixels_of(points_w, t_wc)
     out: dict[str, float] = {'points': float(len(z))}
     if not len(z):
         return out

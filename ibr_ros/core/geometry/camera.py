@@ -183,6 +183,19 @@ class PinholeCamera:
         uv[z <= 0] = np.nan
         return uv, z
 
+    def pixels_of(
+        self, points_w: ArrayLike, t_wc: ArrayLike
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+        """Nearest pixel (column ``u``, row ``v``) and z-depth (m) of the world points ``points_w``
+        (Nx3) that lie in front of the camera at pose ``t_wc`` (4x4 camera-to-world) and project
+        into the image; the others are left out."""
+        t_cw = np.linalg.inv(np.asarray(t_wc, dtype=np.float64))
+        pc = np.asarray(points_w, dtype=np.float64).reshape(-1, 3) @ t_cw[:3, :3].T + t_cw[:3, 3]
+        uv, z = self.project(pc[pc[:, 2] > 0])
+        u, v = np.rint(uv).astype(np.int64).T
+        inside = (u >= 0) & (u < self.width) & (v >= 0) & (v < self.height)
+        return u[inside], v[inside], z[inside]
+
     def backproject(self, uv: ArrayLike, depth: ArrayLike) -> NDArray[np.float64]:
         """Optical-frame points of pixels ``uv`` (Nx2) at z-depth ``depth`` (N, metres)."""
         uva = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
