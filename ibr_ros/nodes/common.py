@@ -6,6 +6,7 @@ and the process entry point (init, spin, clean shutdown)."""
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import math
 import signal
@@ -214,7 +215,8 @@ def run_node(
 ) -> int:
     """Initialise rclpy, run ``spin(node)`` on the node made by ``factory``, clean up; its exit code.
 
-    Ctrl-C or an external shutdown give 0. Malformed ``--ros-args`` (rcl logs the details), or a
+    Ctrl-C or an external shutdown give 0. SIGUSR1 prints every thread's Python stack to stderr
+    (``kill -USR1 PID``: where a busy or stuck node is). Malformed ``--ros-args`` (rcl logs the details), or a
     ``factory`` that rejects its parameters (UserError, ValueError, rclpy ParameterException), give
     :data:`EXIT_BAD_CONFIG` with the reason as one error line, no traceback.
     """
@@ -225,6 +227,7 @@ def run_node(
         # that no KeyboardInterrupt tears through a half-built node; spin then ends by itself.
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: None)
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     sys.unraisablehook = _quiet_half_built
     try:
         rclpy.init(args=list(args) if args is not None else None)

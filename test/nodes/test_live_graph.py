@@ -309,14 +309,23 @@ def test_a_dead_shard_is_taken_over_and_the_model_outlives_its_publishers(repo, 
 
 
 def test_nodes_stop_cleanly_on_sigterm_and_sigint(ros_env):
-    """Every node, SIGTERM or SIGINT: exit 0, no traceback, no glog stack dump."""
+    """Every node, SIGTERM or SIGINT: exit 0, no traceback, no glog stack dump (SIGUSR1 before:
+    the Python stacks, and the node goes on)."""
     for name in ('depth_refiner', 'view_renderer', 'frame_subsampler'):
         for sig in (signal.SIGTERM, signal.SIGINT):
             p = _launch(name, ros_env)
             try:
                 assert spin_lines(p, 'Traceback', lambda t, n=name: f'[{n}]' in t, 90), p.text
+                p.p.send_signal(signal.SIGUSR1)  # prints its stacks and goes on
+                assert spin_lines(p, 'Traceback', lambda t: 'in spin_forever' in t, 30), p.text
                 p.p.send_signal(sig)
-                assert p.p.wait(timeout=30) == 0, p.text
+                try:
+                    code = p.p.wait(timeout=30)
+                except subprocess.TimeoutExpired:  # where it is stuck: run_node dumps stacks on SIGUSR1
+                    p.p.send_signal(signal.SIGUSR1)
+                    spin_lines(p, 'Traceback', lambda t: 'most recent call first' in t, 10)
+                    raise AssertionError(f'{name} still running 30 s after {sig!r}:\n{p.text}') from None
+                assert code == 0, p.text
             finally:
                 p.stop()
             assert 'Traceback' not in p.text and '@     0x' not in p.text, p.text
