@@ -3,17 +3,19 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Refined depth beyond the range MVS sampled, on synthetic bags with ground truth.
 
-``ibr eval depth`` sets the MVS sweep from ground-truth points, so MVS reaches the distant hills;
-the depth_refiner (and ``ibr process``) sweeps ``near_ratio..far_ratio`` x the scene depth along the
-optical axis (:func:`ibr_ros.core.depth.schedule.axis_scene_depth`), so on flights that see the
-horizon the far ground lies beyond every MVS sample and its depth comes from the monocular remap
-alone. This script refines every ``--step``-th frame (at most ``--max-views``) that way and reports
-the mean Abs Rel of the fused depth (``RefinedDepth.fused``: before the sky depth) on non-sky
+``ibr eval depth`` sets the MVS sweep from ground-truth points; the depth_refiner (and ``ibr
+process`` without sparse points) sweeps ``near_ratio..far_ratio`` x the scene depth along the
+optical axis (:func:`ibr_ros.core.depth.schedule.axis_scene_depth`). With a small ``far_ratio`` (4
+before) the far ground of flights that see the horizon lies beyond every MVS sample and its depth
+comes from the monocular remap alone. This script refines every ``--step``-th frame (at most
+``--max-views``) as the depth_refiner does (its scheduler, ranges and neighbours) and reports the
+mean Abs Rel of the fused depth (``RefinedDepth.fused``: before the sky depth) on non-sky
 ground-truth pixels:
 
 * ``beyond level``: pixels with ``0 < G < 256 lo``, ``lo`` the farthest level ``G // 256`` with a
   pruned MVS sample among pixels with ``G > 0``: where the lookup table extrapolates;
 * ``beyond depth``: pixels whose true depth exceeds the largest pruned MVS depth;
+* ``far``: pixels whose true depth exceeds 4 x the median scene depth (the old sweep's far end);
 * ``all``: every non-sky pixel, next to FMM (Telea inpainting of the pruned MVS depth).
 
 Example (a low-pitch flight; a few minutes here, most of it MVS)::
@@ -34,31 +36,39 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps  # noqa: E402
+from ibr_ros.core.depth.job_mvs import PhotometricCache, job_depth  # noqa: E402
+from ibr_ros.core.depth.mvs import MvsView  # noqa: E402
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig  # noqa: E402
-from ibr_ros.core.depth.schedule import ScheduleConfig, axis_scene_depth  # noqa: E402
+from ibr_ros.core.depth.schedule import RefineScheduler, ScheduleConfig  # noqa: E402
 from ibr_ros.jobs.eval_depth import load_views  # noqa: E402
 from ibr_ros.jobs.synth_bag import GroundTruthRenderer  # noqa: E402
 from ibr_ros.models import mono_spec  # noqa: E402
 
 HILL = 6  # ibr_ros.core.synth.LABEL_NAMES.index('hill')
+#: The "far ground" region: true depth beyond this many times the scene depth (the far end of the
+#: schedule's sweep before it was moved beyond the horizon), whatever the sweep reaches.
+FAR_REGION_RATIO = 4.0
 
 
-def scheduler_range(views: list[MvsView]) -> tuple[float, float]:
-    """(near, far) metres as the depth_refiner's schedule sets them by default (the median scene
-    depth of the views, one range for all): :func:`axis_scene_depth`, else (parallel axes) 12.5 x
-    the mean distance to the two nearest other views."""
-    cfg = ScheduleConfig()
-    depths = []
-    for v in views:
-        others = [o for o in views if o is not v]
-        s = axis_scene_depth(v.t_wc, [o.t_wc for o in others])
-        if s is None:
-            gaps = sorted(float(np.linalg.norm(o.t_wc[:3, 3] - v.t_wc[:3, 3])) for o in others)[:2]
-            s = 12.5 * max(float(np.mean(gaps)), 0.1)
-        depths.append(s)
-    depth = float(np.median(depths))
-    return cfg.near_ratio * depth, cfg.far_ratio * depth
+def scheduled_mvs(views: list[MvsView], far_ratio: float | None = None) -> tuple[list[np.ndarray], float]:
+    """MVS depth of every view as the depth_refiner and ``ibr process`` compute it (no sparse
+    points): :class:`RefineScheduler` ranges and neighbours, :func:`job_depth` with a cache; and the
+    median scene depth (m) the ranges came from."""
+    cfg = ScheduleConfig() if far_ratio is None else ScheduleConfig(far_ratio=far_ratio)
+    scheduler = RefineScheduler(cfg)
+    for i, v in enumerate(views):
+        scheduler.add(i, v)
+    cache = PhotometricCache()
+    out = [np.zeros((v.camera.height, v.camera.width), np.float32) for v in views]
+    scene = []
+    while (job := scheduler.next_job(flush=True)) is not None:
+        m = job_depth(
+            job.views, job.stamps, job.depth_range, cfg.mvs, probe_range=job.probe_range, cache=cache
+        )
+        out[job.stamp] = m.depth
+        scene.append(job.depth_range[0] / cfg.near_ratio)
+        scheduler.done(job)
+    return out, float(np.median(scene))
 
 
 def abs_rel(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> tuple[float, int]:
@@ -69,7 +79,9 @@ def abs_rel(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> tuple[float, 
     return float(np.mean(np.abs(p - gt[mask]) / gt[mask])), int(mask.sum())
 
 
-def evaluate(mono: str, views: list[MvsView], gts: list, d_mvs: list[np.ndarray]) -> dict[str, float]:
+def evaluate(
+    mono: str, views: list[MvsView], gts: list, d_mvs: list[np.ndarray], far_m: float = np.inf
+) -> dict[str, float]:
     """Pixel-weighted Abs Rel per region over all views (see the module docstring)."""
     model = mono_spec('ibr_mono') if mono == 'onnx' else None
     refiner = DepthRefiner(RefinerConfig(mono='onnx' if mono == 'onnx' else 'plane', mono_model=model))
@@ -98,11 +110,12 @@ def evaluate(mono: str, views: list[MvsView], gts: list, d_mvs: list[np.ndarray]
         add('beyond_depth', abs_rel(r.fused, gt, beyond_depth))
         add('beyond_depth_hill', abs_rel(r.fused, gt, beyond_depth & (f.label == HILL)))
         add('beyond_depth_other', abs_rel(r.fused, gt, beyond_depth & (f.label != HILL)))
+        add('far', abs_rel(r.fused, gt, nonsky & (gt > far_m)))
         add('all', abs_rel(r.fused, gt, nonsky))
         add('all_fmm', abs_rel(fmm, gt, nonsky))
     n = sums['nonsky'][1]
     out = {k: (s[0] / s[1] if s[1] else float('nan')) for k, s in sums.items() if k != 'nonsky'}
-    for k in ('beyond_level', 'beyond_depth', 'beyond_depth_hill'):
+    for k in ('beyond_level', 'beyond_depth', 'beyond_depth_hill', 'far'):
         out[f'{k}_share'] = sums[k][1] / n
     return out
 
@@ -116,32 +129,36 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         '--mvs-cache', type=Path, help='folder for the MVS depth (<bag name>.npz), reused if there'
     )
+    p.add_argument(
+        '--far-ratio', type=float, help="far end of the sweep x the scene depth (default: the schedule's)"
+    )
     a = p.parse_args(argv)
     print(
         '| bag | mono | beyond level: share, Abs Rel | beyond depth: share (hills), Abs Rel (hills / other) '
-        '| all non-sky: ours / FMM |'
+        f'| beyond {FAR_REGION_RATIO:g} x scene depth: share, Abs Rel | all non-sky: ours / FMM |'
     )
-    print('| --- | --- | --- | --- | --- |')
+    print('| --- | --- | --- | --- | --- | --- |')
     for bag in a.bags:
         views = [v for _, v in load_views(bag, a.step, a.max_views)]
         renderer = GroundTruthRenderer(bag)
         gts = [renderer.render(v.t_wc, v.camera) for v in views]
         cache = a.mvs_cache / f'{bag.name}.npz' if a.mvs_cache else None
         if cache is not None and cache.is_file():
-            d_mvs = list(np.load(cache)['depth'])
+            d_mvs, scene = list(np.load(cache)['depth']), float(np.load(cache)['scene'])
         else:
-            results = compute_depth_maps(views, options=MvsOptions(), depth_range=scheduler_range(views))
-            d_mvs = [r.depth for r in results]
+            d_mvs, scene = scheduled_mvs(views, a.far_ratio)
             if cache is not None:
                 cache.parent.mkdir(parents=True, exist_ok=True)
-                np.savez_compressed(cache, depth=np.stack(d_mvs))
+                np.savez_compressed(cache, depth=np.stack(d_mvs), scene=scene)
+        far_m = FAR_REGION_RATIO * scene
         for mono in a.mono:
-            m = evaluate(mono, views, gts, d_mvs)
+            m = evaluate(mono, views, gts, d_mvs, far_m)
             print(
                 f'| {bag.name} | {mono} | {m["beyond_level_share"]:.1%}, {m["beyond_level"]:.3f} '
                 f'| {m["beyond_depth_share"]:.1%} ({m["beyond_depth_hill_share"]:.1%}), '
                 f'{m["beyond_depth"]:.3f} '
                 f'({m["beyond_depth_hill"]:.3f} / {m["beyond_depth_other"]:.3f}) '
+                f'| {m["far_share"]:.1%}, {m["far"]:.3f} '
                 f'| {m["all"]:.3f} / {m["all_fmm"]:.3f} |',
                 flush=True,
             )

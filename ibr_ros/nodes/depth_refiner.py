@@ -32,6 +32,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.depth.colour import colour_depth
+from ibr_ros.core.depth.job_mvs import PhotometricCache
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig, known_depth, refine_job
@@ -77,6 +78,7 @@ class DepthRefinerNode(Node):
         self.mirror = cfg.mirror_model
         self.max_pending = cfg.max_pending
         self.schedule = RefineScheduler(cfg.schedule)
+        self.photometric = PhotometricCache()  # keyframes' photometric MVS depth, reused by later jobs
         self.trigger = SfmTrigger(cfg.sfm)
         self.sfm = SfmSession(scale_hint=cfg.sfm.scale, max_side=cfg.sfm.max_side, redefine=False)
         self.unit = 'm'  # of poses and depth: 'sfm units' in an SfM frame without a scale
@@ -479,6 +481,7 @@ class DepthRefinerNode(Node):
                 )
             with self._lock:
                 self.schedule = RefineScheduler(replace(cfg, depth_range=None, scene_depth_m=0.0))
+                self.photometric.clear()
             self.unit = 'sfm units'
         world = 'map' if u.frame == 'enu' else 'sfm'
         with self._lock:
@@ -555,7 +558,7 @@ class DepthRefinerNode(Node):
     def _refine(self, job: RefineJob) -> bool:
         """Refine and publish ``job``; False when the refinement failed (counted as bad input)."""
         n, rng = len(job.neighbours), job.depth_range
-        result = refine_job(self.refiner, job, self.schedule.config.mvs)
+        result = refine_job(self.refiner, job, self.schedule.config.mvs, self.photometric)
         if self._stop.is_set():
             return False
         if (r := result.refined) is None:

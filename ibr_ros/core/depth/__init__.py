@@ -18,6 +18,7 @@ from ibr_ros.core.depth.fusion import (
     mvs_support,
     tree_filter,
 )
+from ibr_ros.core.depth.job_mvs import PhotometricCache, job_depth
 from ibr_ros.core.depth.mono import (
     PRESETS,
     GroundPlanePrior,
@@ -105,6 +106,7 @@ __all__ = [
     'MvsView',
     'OnnxMonoDepth',
     'OnnxSkySegmenter',
+    'PhotometricCache',
     'RefineError',
     'RefineJob',
     'RefineScheduler',
@@ -123,6 +125,7 @@ __all__ = [
     'fuse_depth',
     'geometric_filter',
     'horizon_mask',
+    'job_depth',
     'known_depth',
     'level_medians',
     'linear_remap',

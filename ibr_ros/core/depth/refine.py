@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from ibr_ros.core.depth.confidence import ConfidenceConfig, depth_confidence
 from ibr_ros.core.depth.fusion import fuse_with_support
+from ibr_ros.core.depth.job_mvs import PhotometricCache, job_depth
 from ibr_ros.core.depth.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth
 from ibr_ros.core.depth.mvs import MvsOptions, MvsResult, MvsView, compute_depth_maps
 from ibr_ros.core.depth.prune import prune_depth
@@ -338,16 +339,19 @@ class JobResult:
         return sum(self.timings_s.values())
 
 
-def refine_job(refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions) -> JobResult:
-    """MVS of ``job`` (:func:`~ibr_ros.core.depth.mvs.compute_depth_maps` of its views over its depth
-    range, ``mvs`` options), then :meth:`DepthRefiner.refine_from_mvs` of its keyframe.
+def refine_job(
+    refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions, cache: PhotometricCache | None = None
+) -> JobResult:
+    """MVS of ``job`` (:func:`~ibr_ros.core.depth.job_mvs.job_depth` of its views over its depth
+    range, ``mvs`` options; neighbours' photometric depth from ``cache`` where it has them), then
+    :meth:`DepthRefiner.refine_from_mvs` of its keyframe.
 
     A :class:`RefineError` or a result without any known depth (:func:`known_depth`) is a failed
     result, not an exception.
     """
     n = len(job.neighbours)
     t0 = time.perf_counter()
-    m = compute_depth_maps(job.views, options=mvs, depth_range=job.depth_range)[0]
+    m = job_depth(job.views, job.stamps, job.depth_range, mvs, probe_range=job.probe_range, cache=cache)
     t1 = time.perf_counter()
     context = f'{n} neighbours, MVS {m.reason or "ok"}'
     try:

@@ -25,7 +25,9 @@ no image work itself.
   ``(near_ratio, far_ratio) x s`` with ``s`` the scene depth at the image centre: ``scene_depth_m``
   when set, else :func:`axis_scene_depth` (oblique and orbit flights), else (parallel axes, e.g. a
   nadir survey) 12.5 x the mean distance to the two nearest keyframes (the inverse of the
-  frame_subsampler's 0.08 baseline ratio), with a warning to set ``scene_depth_m``.
+  frame_subsampler's 0.08 baseline ratio), with a warning to set ``scene_depth_m``. The sweep is
+  uniform in inverse depth, so a far end far beyond the scene (``far_ratio`` 1000) costs a few
+  planes and lets MVS measure ground up to the horizon; the neighbours' overlap is probed at ``s``.
 
 Warnings are returned once each by :meth:`RefineScheduler.pop_warnings` for the caller to log.
 """
@@ -100,7 +102,7 @@ class ScheduleConfig:
     depth_range: tuple[float, float] | None = None
     scene_depth_m: float = 0.0
     near_ratio: float = 0.25
-    far_ratio: float = 4.0
+    far_ratio: float = 1000.0
     mvs: MvsOptions = field(default_factory=MvsOptions)
 
     def __post_init__(self) -> None:
@@ -139,7 +141,8 @@ class RefineJob:
     ``depth_range``: (near, far) of the MVS sweep in metres; ``plausible``: the same range when it
     comes from the sparse points the keyframe sees (the refined depth must lie in it), else None;
     ``seeds_w``: world points (Kx3) the keyframe observed itself in SfM (depth samples where MVS
-    has none), or None; ``again``: it was refined before.
+    has none), or None; ``again``: it was refined before; ``probe_range``: the range whose geometric
+    mean is the scene depth at which the neighbours' overlap was probed (None: ``depth_range``).
     """
 
     stamp: int
@@ -150,11 +153,17 @@ class RefineJob:
     again: bool = False
     plausible: tuple[float, float] | None = None
     seeds_w: np.ndarray | None = None
+    probe_range: tuple[float, float] | None = None
 
     @property
     def views(self) -> list[MvsView]:
-        """The reference view first, then its neighbours (the input of ``compute_depth_maps``)."""
+        """The reference view first, then its neighbours."""
         return [self.view, *self.neighbour_views]
+
+    @property
+    def stamps(self) -> list[int]:
+        """The stamps of :attr:`views`."""
+        return [self.stamp, *self.neighbours]
 
 
 @dataclass(eq=False)
@@ -259,15 +268,19 @@ class RefineScheduler:
         kf = self._kfs[int(stamp_ns)]
         return self._range(kf, [k for k in self._kfs.values() if k is not kf])[0]
 
-    def _range(self, kf: _Keyframe, others: list[_Keyframe]) -> tuple[tuple[float, float], bool]:
-        """(near, far) and whether it comes from the sparse points."""
+    def _range(
+        self, kf: _Keyframe, others: list[_Keyframe]
+    ) -> tuple[tuple[float, float], bool, tuple[float, float]]:
+        """(near, far), whether it comes from the sparse points, and the range whose geometric mean
+        is the depth at which :func:`select_neighbours` probes the overlap (the scene depth, not the
+        far end of a sweep that reaches beyond the horizon)."""
         cfg = self.config
         if cfg.depth_range is not None:
-            return cfg.depth_range, False
+            return cfg.depth_range, False, cfg.depth_range
         if self._points is not None:
             rng = depth_range_from_points(self._points, kf.view.camera, kf.view.t_wc, margin=POINTS_MARGIN)
             if rng is not None:
-                return rng, True
+                return rng, True, rng
         s = cfg.scene_depth_m or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
         if s is None:
             c = kf.view.t_wc[:3, 3]
@@ -279,7 +292,7 @@ class RefineScheduler:
                     f'optical axes do not converge: scene depth guessed as {s:.1f} m from the keyframe '
                     'spacing; set scene_depth_m or depth_range'
                 )
-        return (s * cfg.near_ratio, s * cfg.far_ratio), False
+        return (s * cfg.near_ratio, s * cfg.far_ratio), False, (s * cfg.near_ratio, s / cfg.near_ratio)
 
     def next_job(self, flush: bool = False) -> RefineJob | None:
         """The oldest keyframe of this worker due for (re)refinement, or None.
@@ -297,8 +310,8 @@ class RefineScheduler:
         for i, kf in enumerate(kfs):
             if not kf.mine or kf.elsewhere or (kf.used and not cfg.refine_again):
                 continue
-            rng, from_points = self._range(kf, kfs[:i] + kfs[i + 1 :])
-            nbrs = select_neighbours(i, poses, cams, depth_range=rng, **options)
+            rng, from_points, probe = self._range(kf, kfs[:i] + kfs[i + 1 :])
+            nbrs = select_neighbours(i, poses, cams, depth_range=probe, **options)
             n = len(nbrs)
             if kf.used:
                 due = n > len(kf.used) and n > kf.failed_with
@@ -315,6 +328,7 @@ class RefineScheduler:
                     again=bool(kf.used),
                     plausible=rng if from_points else None,
                     seeds_w=self._observed.get(kf.stamp),
+                    probe_range=probe,
                 )
             if flush and n == 0 and not kf.alone_warned:
                 kf.alone_warned = True

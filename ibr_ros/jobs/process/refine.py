@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 
+from ibr_ros.core.depth.job_mvs import PhotometricCache
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, refine_job
@@ -44,6 +45,7 @@ def refine_all(
         refiner = DepthRefiner(cfg.refiner)  # loads the ONNX models of mono/sky 'onnx'
     except MonoModelError as exc:
         raise UserError(f'depth_refiner mono_model/sky_model: {exc}') from exc
+    photometric = PhotometricCache()  # each keyframe swept about twice, not once per job it is in
     failures: dict[int, str] = {}
     warnings: list[str] = []
     attempts = 0
@@ -61,7 +63,7 @@ def refine_all(
             break
         attempts += 1
         kf = by_stamp[job.stamp]
-        result = refine_job(refiner, job, cfg.schedule.mvs)
+        result = refine_job(refiner, job, cfg.schedule.mvs, photometric)
         kf.timings_s = dict(result.timings_s)
         if result.refined is None:
             scheduler.failed(job)
