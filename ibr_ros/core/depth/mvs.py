@@ -98,6 +98,8 @@ _NEIGHBOUR_OPTIONS = (
     'target_angle_deg',
     'min_overlap',
     'max_view_angle_deg',
+    'side_spread',
+    'view_angle_scale_deg',
 )
 
 
@@ -138,6 +140,8 @@ class MvsOptions:
     target_angle_deg: float = 10.0
     min_overlap: float = 0.3
     max_view_angle_deg: float = 60.0
+    side_spread: float = 0.5
+    view_angle_scale_deg: float = 30.0
     min_consistent: int = 2
     max_reproj_px: float = 1.0
     max_rel_depth_err: float = 0.01
@@ -169,6 +173,10 @@ class MvsOptions:
                 raise bad(name, '>= 0')
         if not self.min_angle_deg < self.target_angle_deg < self.max_angle_deg:
             raise bad('target_angle_deg', 'between min_angle_deg and max_angle_deg')
+        if not 0 <= self.side_spread < 1:
+            raise bad('side_spread', 'in [0, 1)')
+        if not self.view_angle_scale_deg >= 0:
+            raise bad('view_angle_scale_deg', '>= 0')
         if not self.edge_trim_ratio > 1:
             raise bad('edge_trim_ratio', '> 1')
         for name in ('plane_step_px', 'max_reproj_px', 'max_rel_depth_err', 'max_view_angle_deg'):
@@ -723,6 +731,8 @@ def select_neighbours(
     target_angle_deg: float = 10.0,
     min_overlap: float = 0.3,
     max_view_angle_deg: float = 60.0,
+    side_spread: float = 0.5,
+    view_angle_scale_deg: float = 30.0,
 ) -> list[int]:
     """Indices of up to ``max_neighbours`` source views for view ``ref_index``, best first.
 
@@ -735,10 +745,21 @@ def select_neighbours(
     * the median triangulation angle at the probe points it sees, between the rays from the two
       camera centres, lies in ``[min_angle_deg, max_angle_deg]``.
 
-    Score = overlap x ``exp(-((angle - target) / target)^2 / 2)``. Views are picked greedily by
-    score, a candidate's score scaled by ``min(1, a / min_angle_deg)`` where ``a`` is the smallest
-    angle, seen from the probe centroid, between it and an already picked view (the picks spread out
-    instead of repeating one baseline). Raises ValueError without probe points.
+    Score = overlap x ``exp(-((angle - target) / target)^2 / 2)`` x ``exp(-(v / s)^2 / 2)``, ``v``
+    the angle between the candidate's and the reference's optical axes and ``s`` =
+    ``view_angle_scale_deg`` (0: no such factor): of two views with the same parallax, the one
+    looking the same way wins. Views are picked greedily by score, a candidate's score scaled
+
+    * by ``min(1, a / min_angle_deg)`` for each already picked view, ``a`` the angle between the two
+      seen from the probe centroid (the picks do not repeat one baseline), and
+    * by ``1 - side_spread x (1 + c) / 2``, ``c`` the largest cosine between its side and an
+      already picked view's side; a view's side is the direction of its baseline (its centre minus
+      the reference's) projected onto the reference image plane (no side, ``c`` = 0, when the
+      baseline is along the optical axis). A candidate on the side of a pick is scaled by
+      ``1 - side_spread``, one at right angles by ``1 - side_spread / 2``, one opposite every pick
+      by 1: the picks surround the reference where the flight allows.
+
+    Ties go to the lower index. Raises ValueError without probe points.
     """
     t_all = _poses('poses', poses)
     n = len(t_all)
@@ -760,7 +781,8 @@ def select_neighbours(
     cands: list[tuple[float, int]] = []
     for j in range(n):
         t_j = t_all[j]
-        if j == ref_index or _angle_deg(t_ref[:3, 2], t_j[:3, 2]) > max_view_angle_deg:
+        view_angle = float(_angle_deg(t_ref[:3, 2], t_j[:3, 2]))
+        if j == ref_index or view_angle > max_view_angle_deg:
             continue
         vis, _ = _in_view(probes, cams[j], t_j)
         overlap = float(vis.mean())
@@ -768,7 +790,16 @@ def select_neighbours(
             continue
         ang = float(np.median(_angle_deg(t_ref[:3, 3] - probes[vis], t_j[:3, 3] - probes[vis])))
         if min_angle_deg <= ang <= max_angle_deg:
-            cands.append((overlap * math.exp(-0.5 * ((ang - target_angle_deg) / target_angle_deg) ** 2), j))
+            s = overlap * math.exp(-0.5 * ((ang - target_angle_deg) / target_angle_deg) ** 2)
+            if view_angle_scale_deg > 0:
+                s *= math.exp(-0.5 * (view_angle / view_angle_scale_deg) ** 2)
+            cands.append((s, j))
+    # Sides: unit baseline directions in the reference image plane (camera x right, y down).
+    side = {}
+    for _, j in cands:
+        b = ((t_all[j][:3, 3] - t_ref[:3, 3]) @ t_ref[:3, :3])[:2]
+        norm = float(np.linalg.norm(b))
+        side[j] = b / norm if norm > 1e-9 else np.zeros(2)
     picked: list[int] = []
     while cands and len(picked) < max_neighbours:
         scores = []
@@ -776,6 +807,9 @@ def select_neighbours(
             for k in picked:
                 a = float(_angle_deg(t_all[j][:3, 3] - centroid, t_all[k][:3, 3] - centroid))
                 s *= min(1.0, a / max(min_angle_deg, 1e-6))
+            if picked:
+                c = max(float(side[j] @ side[k]) for k in picked)
+                s *= 1.0 - side_spread * (1.0 + c) / 2.0
             scores.append(s)
         picked.append(cands.pop(int(np.argmax(scores)))[1])
     return picked

@@ -218,6 +218,30 @@ def test_select_neighbours_rule():
         mvs.select_neighbours(0, poses, [cam, cam], points_w=pts)
 
 
+def test_select_neighbours_surrounds_the_reference_and_prefers_its_viewing_direction():
+    cam = PinholeCamera.from_fov(320, 240, 60.0)
+    target = np.zeros(3)
+
+    def at(x, look=target):
+        return look_at([x, -100, 60], look)
+
+    pts = np.random.default_rng(0).uniform([-20, -20, 0], [20, 20, 5], (500, 3))
+    # Three candidates right of the reference near the 10 deg target, one left and farther (~15 deg).
+    poses = np.stack([at(0), at(16), at(20), at(24), at(-30)])
+    assert mvs.select_neighbours(0, poses, cam, points_w=pts, max_neighbours=2, side_spread=0) == [2, 1]
+    assert mvs.select_neighbours(0, poses, cam, points_w=pts, max_neighbours=2) == [2, 4]
+    assert mvs.select_neighbours(0, poses, cam, points_w=pts) == [2, 4, 1, 3]
+    # Same overlap (all probes), the right view nearer the target angle but pitched 17 deg up.
+    wide = PinholeCamera.from_fov(320, 240, 80.0)
+    poses = np.stack([at(0), at(-15), at(20, [0, -40, 30])])
+    assert mvs.select_neighbours(0, poses, wide, points_w=pts, view_angle_scale_deg=0) == [2, 1]
+    assert mvs.select_neighbours(0, poses, wide, points_w=pts) == [1, 2]
+    with pytest.raises(ValueError, match='side_spread'):
+        MvsOptions(side_spread=1.0)
+    with pytest.raises(ValueError, match='view_angle_scale_deg'):
+        MvsOptions(view_angle_scale_deg=-1.0)
+
+
 # --------------------------------------------------------------------------------------------- filter
 
 
