@@ -24,9 +24,12 @@ def test_the_cache_keeps_the_most_recently_used_maps():
     c.put(2, b)
     assert c.get(1) is not None  # 1 is now the most recent
     c.put(3, d)
-    assert len(c) == 2 and c.get(2) is None and c.get(1) is not None
+    assert len(c) == 2
+    assert c.get(2) is None
+    assert c.get(1) is not None
     got = c.get(3)
-    assert got is not None and not got.flags.writeable
+    assert got is not None
+    assert not got.flags.writeable
     np.testing.assert_array_equal(got, d)
     assert (c.hits, c.misses) == (3, 1)
     c.clear()
@@ -45,7 +48,8 @@ def test_without_a_cache_it_is_the_batch_geometric_depth_of_the_reference():
     np.testing.assert_array_equal(r.depth, batch.depth)
     np.testing.assert_array_equal(r.n_consistent, batch.n_consistent)
     np.testing.assert_array_equal(r.confidence, batch.confidence)
-    assert r.neighbours == (1, 2) and r.reason == ''
+    assert r.neighbours == (1, 2)
+    assert r.reason == ''
     assert (r.depth > 0).mean() > 0.5
 
 
@@ -61,7 +65,8 @@ def test_a_cached_neighbour_is_not_swept_again(monkeypatch):
     assert len(sweeps) == 1  # the reference only
     np.testing.assert_array_equal(again.depth, first.depth)
     swapped = job_depth([views[1], views[0], views[2]], [2, 1, 3], RANGE, OPTIONS, cache=cache)
-    assert len(sweeps) == 2 and (swapped.depth > 0).mean() > 0.5
+    assert len(sweeps) == 2
+    assert (swapped.depth > 0).mean() > 0.5
 
 
 def test_a_sweep_beyond_the_horizon_picks_the_neighbours_of_the_scene_depth():
@@ -74,7 +79,8 @@ def test_a_sweep_beyond_the_horizon_picks_the_neighbours_of_the_scene_depth():
         job = s.next_job(flush=True)
         assert job is not None
         jobs.append(job)
-    assert jobs[0].neighbours == jobs[1].neighbours and len(jobs[0].neighbours) == 2
+    assert jobs[0].neighbours == jobs[1].neighbours
+    assert len(jobs[0].neighbours) == 2
     assert jobs[1].depth_range == pytest.approx((6.25, 25000.0))
     assert jobs[1].probe_range == pytest.approx((6.25, 100.0))
     r = job_depth(
