@@ -129,6 +129,7 @@ class MvsOptions:
     refine_steps: int = 2
     propagation_radius: int = 4
     surface_passes: int = 2
+    surface_steps: int = 2
     min_zncc: float = 0.5
     min_std: float = 2.0
     min_margin: float = 0.01
@@ -163,7 +164,7 @@ class MvsOptions:
             raise bad('min_planes', f'in [3, max_planes = {self.max_planes}]')
         if not 0.1 <= self.sweep_scale <= 1.0:
             raise bad('sweep_scale', 'in [0.1, 1]')
-        for name in ('top_k', 'refine_steps', 'max_neighbours', 'min_consistent'):
+        for name in ('top_k', 'refine_steps', 'surface_steps', 'max_neighbours', 'min_consistent'):
             if getattr(self, name) < 1:
                 raise bad(name, '>= 1')
         for name in (
@@ -726,9 +727,10 @@ def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: f
     rho = base + (pos - o.refine_steps) * np.float32(half)
     for _ in range(o.surface_passes):
         base = cv2.medianBlur(np.where(valid, rho, 0).astype(np.float32), 5)
-        pos, score, _ = fine.sweep(stats, base, np.arange(-2, 3) * 0.25 * half, o.refine_window, o)
+        k = o.surface_steps
+        pos, score, _ = fine.sweep(stats, base, np.arange(-k, k + 1) * 0.25 * half, o.refine_window, o)
         valid &= pos >= 0
-        rho = base + (pos - 2) * np.float32(0.25 * half)
+        rho = base + (pos - k) * np.float32(0.25 * half)
 
     # 3. reject
     bad = up(bad_s.astype(np.uint8)).astype(bool) | ~valid | ~(rho > rho_far * 0.999)
