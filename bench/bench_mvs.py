@@ -35,12 +35,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmark this checkout
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import _mvs_baseline  # noqa: E402
-import numba  # noqa: E402
-import numpy as np  # noqa: E402
+import _mvs_baseline
+import numba
+import numpy as np
 
-from ibr_ros.core.depth import mvs  # noqa: E402
-from ibr_ros.core.synth import (  # noqa: E402
+from ibr_ros.core.depth import mvs
+from ibr_ros.core.synth import (
     SceneConfig,
     build_scene,
     flight_camera,
@@ -48,15 +48,16 @@ from ibr_ros.core.synth import (  # noqa: E402
     render_view,
     safe_altitude_range,
 )
+from ibr_ros.core.synth.trajectory import TrajectoryKind
 
 TARGET_S = 5.0  # 960x540, 4 neighbours (the script's contract since it was written)
 ISSUE_TARGET_S = 1.5  # 1000x750, 4 neighbours, issue 15
 SIZES = ((640, 360), (960, 540), (1000, 750))
-SCENES = (('orbit', 1), ('lawnmower', 2))
+SCENES: tuple[tuple[TrajectoryKind, int], ...] = (('orbit', 1), ('lawnmower', 2))
 IMPLS = (('new', mvs.mvs_depth), ('baseline', _mvs_baseline.mvs_depth))
 
 
-def views(size: tuple[int, int], kind: str, seed: int, n: int = 5, spacing_s: float = 2.0):
+def views(size: tuple[int, int], kind: TrajectoryKind, seed: int, n: int = 5, spacing_s: float = 2.0):
     """``n`` rendered frames ``spacing_s`` seconds (16 m) apart: camera, frames, poses, GT sparse points."""
     cfg = SceneConfig(seed=seed)
     scene = build_scene(cfg)
@@ -94,12 +95,18 @@ def timed(args: tuple, kw: dict, runs: int) -> dict[str, tuple[float, float, mvs
             c0, t0 = time.process_time(), time.perf_counter()
             res[k] = fn(*args, **kw)
             t[k].append((time.perf_counter() - t0, time.process_time() - c0))
-    return {k: (float(np.median([w for w, _ in v])), float(np.median([c for _, c in v])), res[k]) for k, v in t.items()}
+    return {
+        k: (float(np.median([w for w, _ in v])), float(np.median([c for _, c in v])), res[k])
+        for k, v in t.items()
+    }
 
 
 def synthetic(runs: int) -> float:
     """Prints the synthetic table; returns the 960x540 4-neighbour median wall time of the new code."""
-    print('| size | flight | nbrs | planes | new s (CPU) | baseline s (CPU) | ratio wall (CPU) | accuracy new / base | completeness new / base |')
+    print(
+        '| size | flight | nbrs | planes | new s (CPU) | baseline s (CPU) | ratio wall (CPU) '
+        '| accuracy new / base | completeness new / base |'
+    )
     print('| --- | --- | --- | --- | --- | --- | --- | --- | --- |')
     t_contract = 0.0
     for size in SIZES:
@@ -123,7 +130,9 @@ def synthetic(runs: int) -> float:
                     t_contract = max(t_contract, wn)
                 if size == (1000, 750) and len(js) == 4:
                     verdict = 'met' if wn <= ISSUE_TARGET_S else 'MISSED'
-                    print(f'  issue-15 target {ISSUE_TARGET_S} s at 1000x750, 4 neighbours ({kind}): {verdict}')
+                    print(
+                        f'  issue-15 target {ISSUE_TARGET_S} s at 1000x750, 4 neighbours ({kind}): {verdict}'
+                    )
     return t_contract
 
 
@@ -150,8 +159,14 @@ def brighton(bag: Path, cache: Path, n_views: int, runs: int) -> None:
     poses = np.stack([k[2] for k in kfs])
     cams = [k[1] for k in kfs]
     picks = np.linspace(0, len(kfs) - 1, n_views + 2).round().astype(int)[1:-1]
-    print(f'\n{bag}: {len(kfs)} keyframes {cams[0].width}x{cams[0].height}, {len(points)} SfM points; views {[int(i) for i in picks]}')
-    print('| nbrs | new s (CPU) | baseline s (CPU) | ratio wall (CPU) | pixels with depth new / base | SfM points with depth | within 5 % | > 20 % off |')
+    print(
+        f'\n{bag}: {len(kfs)} keyframes {cams[0].width}x{cams[0].height}, {len(points)} SfM points; '
+        f'views {[int(i) for i in picks]}'
+    )
+    print(
+        '| nbrs | new s (CPU) | baseline s (CPU) | ratio wall (CPU) | pixels with depth new / base '
+        '| SfM points with depth | within 5 % | > 20 % off |'
+    )
     print('| --- | --- | --- | --- | --- | --- | --- | --- |')
     for nb in (2, 4):
         rows = []
@@ -168,7 +183,13 @@ def brighton(bag: Path, cache: Path, n_views: int, runs: int) -> None:
                 dz = d[v, u]
                 has = dz > 0
                 rel = np.abs(dz[has] - z[has]) / z[has]
-                row += [float((d > 0).mean()), float(has.mean()), float((rel < 0.05).mean()), int((rel > 0.2).sum()), int(has.sum())]
+                row += [
+                    float((d > 0).mean()),
+                    float(has.mean()),
+                    float((rel < 0.05).mean()),
+                    int((rel > 0.2).sum()),
+                    int(has.sum()),
+                ]
             rows.append(row)
         a = np.array(rows, dtype=float)
         med = np.median(a[:, :4], axis=0)
@@ -185,14 +206,18 @@ def brighton(bag: Path, cache: Path, n_views: int, runs: int) -> None:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     p.add_argument('--runs', type=int, default=2, help='warm runs per implementation (median)')
-    p.add_argument('--bag', type=Path, default=Path(__file__).resolve().parents[1] / 'bags' / 'brighton_beach')
+    p.add_argument(
+        '--bag', type=Path, default=Path(__file__).resolve().parents[1] / 'bags' / 'brighton_beach'
+    )
     p.add_argument('--cache', type=Path, default=Path('/tmp/ibr_bench_mvs_brighton.pkl'))
     p.add_argument('--views', type=int, default=3, help='real keyframes timed')
     p.add_argument('--skip-real', action='store_true')
     p.add_argument('--skip-synthetic', action='store_true')
     a = p.parse_args()
     load0 = os.getloadavg()[0]
-    print(f'threads: numba {numba.get_num_threads()}, cores {os.cpu_count()}; load average (1 min) {load0:.2f}')
+    print(
+        f'threads: numba {numba.get_num_threads()}, cores {os.cpu_count()}; load average (1 min) {load0:.2f}'
+    )
     t_contract = 0.0 if a.skip_synthetic else synthetic(a.runs)
     if not a.skip_real:
         brighton(a.bag, a.cache, a.views, a.runs)

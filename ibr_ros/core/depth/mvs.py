@@ -678,7 +678,7 @@ def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: f
     # each pixel's winner +- coarse_band planes at sweep_scale
     hc, wc = coarse.ref.shape
     stats_s = _box_stats(coarse.ref, o.window // 2)
-    if o.coarse_band > 0 and min(hc, wc) >= 32:
+    if o.coarse_band > 0 and min(hc, wc) >= 16:
         top = stack(0.5 * s)
         n_top = max(3, (n_planes + 2) // 2)
         step_top = (rho_far - rho_near) / (n_top - 1)
