@@ -9,6 +9,7 @@ hypotheses per pixel, float64 warps) in place of the current one. Not used by th
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from unittest import mock
 
 import cv2
@@ -24,8 +25,14 @@ from ibr_ros.core.geometry.camera import PinholeCamera
 _STRIP_ROWS = 32
 
 
+#: The defaults of the options this sweep reads that changed with it.
+OPTIONS = replace(MvsOptions(), refine_steps=3, surface_passes=1)
+
+
 def mvs_depth(*args, **kwargs) -> MvsResult:
-    """:func:`ibr_ros.core.depth.mvs.mvs_depth` with the baseline sweep."""
+    """:func:`ibr_ros.core.depth.mvs.mvs_depth` with the baseline sweep (and, without ``options``,
+    its defaults :data:`OPTIONS`)."""
+    kwargs.setdefault('options', OPTIONS)
     with mock.patch.object(mvs, '_sweep_and_refine', _sweep_and_refine):
         return mvs.mvs_depth(*args, **kwargs)
 

@@ -12,13 +12,17 @@ CUDA. For one reference view and its source views (:func:`select_neighbours`), :
    source is warped by it (bilinear) and the zero-mean normalised cross-correlation (ZNCC) over a
    ``window`` x ``window`` box comes from running box sums (O(1) per pixel and plane). The plane's
    score is the mean of the ``top_k`` best source ZNCCs (robust to occlusion in the others); the
-   winner takes all, with a parabola through its neighbours for sub-plane inverse depth.
-2. **Refine** at full resolution, every pixel warped by its own inverse depth (so windows follow
-   the coarse surface, slanted ground included): each pixel picks the best of the coarse inverse
-   depth of its own, its 4 neighbouring and the nearest / farthest coarse pixels within
-   ``propagation_radius`` (this pulls background depth back over foreground "fattening"), then
-   offsets of half a coarse plane step around it (parabola fit), then ``surface_passes`` times
-   quarter-step offsets around the 5x5 median of the result.
+   winner takes all, with a parabola through its neighbours for sub-plane inverse depth. With
+   ``coarse_band`` (default) the full sweep runs at half of ``sweep_scale`` over every second
+   plane, and at ``sweep_scale`` each pixel only scores its coarse winner +- ``coarse_band``
+   planes (the ambiguity and range tests below use the coarse sweep).
+2. **Propagate**: each pixel picks the best of the inverse depth of its own, its 4 neighbouring
+   and the nearest / farthest pixels within ``propagation_radius`` (this pulls background depth
+   back over foreground "fattening"), scored at ``sweep_scale`` (``propagate_at_sweep_scale``,
+   default) or at full resolution. **Refine** at full resolution, every pixel warped by its own
+   inverse depth (so windows follow the coarse surface, slanted ground included): offsets of half
+   a plane step around it (``refine_steps`` each side, parabola fit), then ``surface_passes`` times
+   quarter-step offsets (``surface_steps`` each side) around the 5x5 median of the result.
 3. **Reject** pixels whose score is below ``min_zncc``, whose reference window's standard
    deviation is below ``min_std`` grey levels (low texture), whose sweep is ambiguous (another
    score peak more than two planes away within ``min_margin``), whose winner is the first or last
@@ -107,9 +111,11 @@ class MvsOptions:
 
     Sweep: ``n_planes`` (None: ``plane_step_px`` pixels of disparity per plane, clamped to
     ``[min_planes, max_planes]``), ``sweep_scale``, ``window`` (odd, pixels at the sweep scale),
-    ``top_k`` best sources averaged. Refinement: ``refine_window`` (odd, full-resolution pixels),
-    ``refine_steps`` half-plane offsets each side, ``propagation_radius`` (sweep-scale pixels),
-    ``surface_passes``. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
+    ``top_k`` best sources averaged, ``coarse_band`` (planes each side of the coarser sweep's winner;
+    0 = sweep every plane at ``sweep_scale``). Refinement: ``propagate_at_sweep_scale``,
+    ``propagation_radius`` (sweep-scale pixels), ``refine_window`` (odd, full-resolution pixels),
+    ``refine_steps`` half-plane offsets each side, ``surface_passes``, ``surface_steps``
+    quarter-half-plane offsets each side. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
     0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off), ``edge_trim_ratio``. Neighbours: the
     keyword arguments of :func:`select_neighbours` (:meth:`neighbour_options`). Geometric filter:
     ``min_consistent``, ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
