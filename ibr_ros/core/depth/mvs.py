@@ -13,13 +13,14 @@ CUDA. For one reference view and its source views (:func:`select_neighbours`), :
    ``window`` x ``window`` box comes from running box sums (O(1) per pixel and plane). The plane's
    score is the mean of the ``top_k`` best source ZNCCs (robust to occlusion in the others); the
    winner takes all, with a parabola through its neighbours for sub-plane inverse depth. With
-   ``coarse_band`` (default) the full sweep runs at half of ``sweep_scale`` over every second
-   plane, and at ``sweep_scale`` each pixel only scores its coarse winner +- ``coarse_band``
-   planes (the ambiguity and range tests below use the coarse sweep).
+   ``coarse_band`` > 0 (off by default: faster, less precise, see bench/README.md) the full sweep
+   runs at half of ``sweep_scale`` over every second plane, and at ``sweep_scale`` each pixel only
+   scores its coarse winner +- ``coarse_band`` planes (the ambiguity and range tests below then
+   use the coarse sweep).
 2. **Propagate**: each pixel picks the best of the inverse depth of its own, its 4 neighbouring
    and the nearest / farthest pixels within ``propagation_radius`` (this pulls background depth
-   back over foreground "fattening"), scored at ``sweep_scale`` (``propagate_at_sweep_scale``,
-   default) or at full resolution. **Refine** at full resolution, every pixel warped by its own
+   back over foreground "fattening"), scored at full resolution (default) or at ``sweep_scale``
+   (``propagate_at_sweep_scale``). **Refine** at full resolution, every pixel warped by its own
    inverse depth (so windows follow the coarse surface, slanted ground included): offsets of half
    a plane step around it (``refine_steps`` each side, parabola fit), then ``surface_passes`` times
    quarter-step offsets (``surface_steps`` each side) around the 5x5 median of the result.
@@ -115,10 +116,11 @@ class MvsOptions:
     0 = sweep every plane at ``sweep_scale``). Refinement: ``propagate_at_sweep_scale``,
     ``propagation_radius`` (sweep-scale pixels), ``refine_window`` (odd, full-resolution pixels),
     ``refine_steps`` half-plane offsets each side, ``surface_passes``, ``surface_steps``
-    quarter-half-plane offsets each side. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
-    0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off), ``edge_trim_ratio``. Neighbours: the
-    keyword arguments of :func:`select_neighbours` (:meth:`neighbour_options`). Geometric filter:
-    ``min_consistent``, ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
+    quarter-half-plane offsets each side. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1),
+    ``min_std`` (grey levels 0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off),
+    ``edge_trim_ratio``. Neighbours: the keyword arguments of :func:`select_neighbours`
+    (:meth:`neighbour_options`). Geometric filter: ``min_consistent``, ``max_reproj_px``,
+    ``max_rel_depth_err`` of :func:`geometric_filter`.
     """
 
     backend: Literal['cpu', 'colmap'] = 'cpu'
@@ -130,12 +132,12 @@ class MvsOptions:
     window: int = 7
     top_k: int = 2
     refine_window: int = 7
-    coarse_band: int = 2
-    propagate_at_sweep_scale: bool = True
+    coarse_band: int = 0
+    propagate_at_sweep_scale: bool = False
     refine_steps: int = 2
     propagation_radius: int = 4
-    surface_passes: int = 2
-    surface_steps: int = 2
+    surface_passes: int = 1
+    surface_steps: int = 1
     min_zncc: float = 0.5
     min_std: float = 2.0
     min_margin: float = 0.01

@@ -186,9 +186,9 @@ def test_full_resolution_sweep_option():
 @pytest.mark.parametrize(
     'kw',
     [
-        {'coarse_band': 0, 'propagate_at_sweep_scale': False, 'refine_steps': 3, 'surface_passes': 1},
+        {'refine_steps': 3, 'surface_steps': 2},  # the defaults before issue 15
+        {'coarse_band': 2, 'propagate_at_sweep_scale': True, 'surface_passes': 2},  # bench_mvs FAST
         {'coarse_band': 1, 'surface_steps': 2},
-        {},
     ],
 )
 def test_sweep_variants_are_exact_on_a_plane(kw):
