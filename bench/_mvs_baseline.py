@@ -25,7 +25,7 @@ from ibr_ros.core.geometry.camera import PinholeCamera
 _STRIP_ROWS = 32
 
 
-#: The defaults of the options this sweep reads that changed with it.
+#: The defaults of the options this sweep reads (the same as :class:`MvsOptions`' today).
 OPTIONS = replace(MvsOptions(), refine_steps=3, surface_passes=1)
 
 

@@ -55,7 +55,9 @@ ISSUE_TARGET_S = 1.5  # 1000x750, 4 neighbours, issue 15
 SIZES = ((640, 360), (960, 540), (1000, 750))
 SCENES: tuple[tuple[TrajectoryKind, int], ...] = (('orbit', 1), ('lawnmower', 2))
 #: The coarse-to-fine option (faster, less precise; not the default).
-FAST = mvs.MvsOptions(coarse_band=2, propagate_at_sweep_scale=True, surface_passes=2)
+FAST = mvs.MvsOptions(
+    coarse_band=2, propagate_at_sweep_scale=True, refine_steps=2, surface_passes=2, surface_steps=1
+)
 IMPLS = (
     ('new', mvs.mvs_depth),
     ('fast', lambda *a, **k: mvs.mvs_depth(*a, options=FAST, **k)),

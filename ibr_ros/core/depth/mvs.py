@@ -134,10 +134,10 @@ class MvsOptions:
     refine_window: int = 7
     coarse_band: int = 0
     propagate_at_sweep_scale: bool = False
-    refine_steps: int = 2
+    refine_steps: int = 3
     propagation_radius: int = 4
     surface_passes: int = 1
-    surface_steps: int = 1
+    surface_steps: int = 2
     min_zncc: float = 0.5
     min_std: float = 2.0
     min_margin: float = 0.01

@@ -186,8 +186,14 @@ def test_full_resolution_sweep_option():
 @pytest.mark.parametrize(
     'kw',
     [
-        {'refine_steps': 3, 'surface_steps': 2},  # the defaults before issue 15
-        {'coarse_band': 2, 'propagate_at_sweep_scale': True, 'surface_passes': 2},  # bench_mvs FAST
+        {},
+        {  # bench_mvs FAST
+            'coarse_band': 2,
+            'propagate_at_sweep_scale': True,
+            'refine_steps': 2,
+            'surface_passes': 2,
+            'surface_steps': 1,
+        },
         {'coarse_band': 1, 'surface_steps': 2},
     ],
 )
