@@ -124,7 +124,7 @@ TIME_HEAD = ' | '.join([f'{k} s (CPU)' for k, _ in IMPLS] + [f'{k} / baseline' f
 def synthetic(runs: int) -> float:
     """Prints the synthetic table; returns the 960x540 4-neighbour median wall time of the new code."""
     print(f'| size | flight | nbrs | planes | {TIME_HEAD} | accuracy {NAMES} | completeness {NAMES} |')
-    print('| --- ' * (9 + len(IMPLS)) + '|')
+    print('| --- ' * (5 + 2 * len(IMPLS)) + '|')
     t_contract = 0.0
     for size in SIZES:
         for kind, seed in SCENES:
@@ -184,7 +184,7 @@ def brighton(bag: Path, cache: Path, n_views: int, runs: int) -> None:
         f'| nbrs | {TIME_HEAD} | pixels with depth {NAMES} | SfM points with depth | within 5 % '
         '| > 20 % off (of points with depth) |'
     )
-    print('| --- ' * (6 + 2 * len(IMPLS) - 1) + '|')
+    print('| --- ' * (4 + 2 * len(IMPLS)) + '|')
     for nb in (2, 4):
         times: dict[str, list[tuple[float, float]]] = {k: [] for k, _ in IMPLS}
         stats: dict[str, list[tuple[float, float, float, int, int]]] = {k: [] for k, _ in IMPLS}
