@@ -12,13 +12,18 @@ CUDA. For one reference view and its source views (:func:`select_neighbours`), :
    source is warped by it (bilinear) and the zero-mean normalised cross-correlation (ZNCC) over a
    ``window`` x ``window`` box comes from running box sums (O(1) per pixel and plane). The plane's
    score is the mean of the ``top_k`` best source ZNCCs (robust to occlusion in the others); the
-   winner takes all, with a parabola through its neighbours for sub-plane inverse depth.
-2. **Refine** at full resolution, every pixel warped by its own inverse depth (so windows follow
-   the coarse surface, slanted ground included): each pixel picks the best of the coarse inverse
-   depth of its own, its 4 neighbouring and the nearest / farthest coarse pixels within
-   ``propagation_radius`` (this pulls background depth back over foreground "fattening"), then
-   offsets of half a coarse plane step around it (parabola fit), then ``surface_passes`` times
-   quarter-step offsets around the 5x5 median of the result.
+   winner takes all, with a parabola through its neighbours for sub-plane inverse depth. With
+   ``coarse_band`` > 0 (off by default: faster, less precise, see bench/README.md) the full sweep
+   runs at half of ``sweep_scale`` over every second plane, and at ``sweep_scale`` each pixel only
+   scores its coarse winner +- ``coarse_band`` planes (the ambiguity and range tests below then
+   use the coarse sweep).
+2. **Propagate**: each pixel picks the best of the inverse depth of its own, its 4 neighbouring
+   and the nearest / farthest pixels within ``propagation_radius`` (this pulls background depth
+   back over foreground "fattening"), scored at full resolution (default) or at ``sweep_scale``
+   (``propagate_at_sweep_scale``). **Refine** at full resolution, every pixel warped by its own
+   inverse depth (so windows follow the coarse surface, slanted ground included): offsets of half
+   a plane step around it (``refine_steps`` each side, parabola fit), then ``surface_passes`` times
+   quarter-step offsets (``surface_steps`` each side) around the 5x5 median of the result.
 3. **Reject** pixels whose score is below ``min_zncc``, whose reference window's standard
    deviation is below ``min_std`` grey levels (low texture), whose sweep is ambiguous (another
    score peak more than two planes away within ``min_margin``), whose winner is the first or last
@@ -109,12 +114,15 @@ class MvsOptions:
 
     Sweep: ``n_planes`` (None: ``plane_step_px`` pixels of disparity per plane, clamped to
     ``[min_planes, max_planes]``), ``sweep_scale``, ``window`` (odd, pixels at the sweep scale),
-    ``top_k`` best sources averaged. Refinement: ``refine_window`` (odd, full-resolution pixels),
-    ``refine_steps`` half-plane offsets each side, ``propagation_radius`` (sweep-scale pixels),
-    ``surface_passes``. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1), ``min_std`` (grey levels
-    0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off), ``edge_trim_ratio``. Neighbours: the
-    keyword arguments of :func:`select_neighbours` (:meth:`neighbour_options`). Geometric filter:
-    ``min_consistent``, ``max_reproj_px``, ``max_rel_depth_err`` of :func:`geometric_filter`.
+    ``top_k`` best sources averaged, ``coarse_band`` (planes each side of the coarser sweep's winner;
+    0 = sweep every plane at ``sweep_scale``). Refinement: ``propagate_at_sweep_scale``,
+    ``propagation_radius`` (sweep-scale pixels), ``refine_window`` (odd, full-resolution pixels),
+    ``refine_steps`` half-plane offsets each side, ``surface_passes``, ``surface_steps``
+    quarter-half-plane offsets each side. Rejection: ``min_zncc`` (aggregated ZNCC, -1..1),
+    ``min_std`` (grey levels 0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off),
+    ``edge_trim_ratio``. Neighbours: the keyword arguments of :func:`select_neighbours`
+    (:meth:`neighbour_options`). Geometric filter: ``min_consistent``, ``max_reproj_px``,
+    ``max_rel_depth_err`` of :func:`geometric_filter`.
     """
 
     backend: Literal['cpu', 'colmap'] = 'cpu'
@@ -126,9 +134,12 @@ class MvsOptions:
     window: int = 7
     top_k: int = 2
     refine_window: int = 7
+    coarse_band: int = 0
+    propagate_at_sweep_scale: bool = False
     refine_steps: int = 3
     propagation_radius: int = 4
     surface_passes: int = 1
+    surface_steps: int = 2
     min_zncc: float = 0.5
     min_std: float = 2.0
     min_margin: float = 0.01
@@ -165,10 +176,17 @@ class MvsOptions:
             raise bad('min_planes', f'in [3, max_planes = {self.max_planes}]')
         if not 0.1 <= self.sweep_scale <= 1.0:
             raise bad('sweep_scale', 'in [0.1, 1]')
-        for name in ('top_k', 'refine_steps', 'max_neighbours', 'min_consistent'):
+        for name in ('top_k', 'refine_steps', 'surface_steps', 'max_neighbours', 'min_consistent'):
             if getattr(self, name) < 1:
                 raise bad(name, '>= 1')
-        for name in ('propagation_radius', 'surface_passes', 'edge_trim_px', 'min_std', 'min_angle_deg'):
+        for name in (
+            'coarse_band',
+            'propagation_radius',
+            'surface_passes',
+            'edge_trim_px',
+            'min_std',
+            'min_angle_deg',
+        ):
             if getattr(self, name) < 0:
                 raise bad(name, '>= 0')
         if not self.min_angle_deg < self.target_angle_deg < self.max_angle_deg:
@@ -257,31 +275,44 @@ def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
     """Rows ``ya:yb`` of one source warped into the reference at inverse depth ``base + off``.
 
     A reference pixel (u, v) maps to ``a @ (u, v, 1) + rho * b`` (homogeneous source pixel), with
-    ``a = K_s R K_r^-1`` and ``b = K_s t``. Bilinear, border clamped; ``valid`` (rows ``y0:y1``) is
-    False where the centre falls outside the source or behind it, or ``rho <= 0``.
+    ``a = K_s R K_r^-1`` and ``b = K_s t``, in float32 (about 1e-4 px at 1000 px). Bilinear, border
+    clamped; ``valid`` (rows ``y0:y1``) is False where the centre falls outside the source or behind
+    it, or ``rho <= 0``. Per row, the positions come first (a loop that vectorises), then the taps.
     """
     W = out.shape[1]
+    f32 = np.float32
+    a00, a10, a20 = f32(a[0, 0]), f32(a[1, 0]), f32(a[2, 0])
+    b0, b1, b2 = f32(b[0]), f32(b[1]), f32(b[2])
+    lo, hx, hy = f32(-0.5), f32(ws - 0.5), f32(hs - 0.5)
+    xmax, ymax = f32(ws - 1.001), f32(hs - 1.001)
+    zero, tiny = f32(0.0), f32(1e-9)
+    px = np.empty(W, np.float32)
+    py = np.empty(W, np.float32)
+    ok = np.empty(W, np.bool_)
     for y in range(ya, yb):
+        c0 = f32(a[0, 1] * y + a[0, 2])
+        c1 = f32(a[1, 1] * y + a[1, 2])
+        c2 = f32(a[2, 1] * y + a[2, 2])
         for x in range(W):
+            xf = f32(x)
             rho = base[y, x] + off
-            h0 = a[0, 0] * x + a[0, 1] * y + a[0, 2] + rho * b[0]
-            h1 = a[1, 0] * x + a[1, 1] * y + a[1, 2] + rho * b[1]
-            h2 = a[2, 0] * x + a[2, 1] * y + a[2, 2] + rho * b[2]
-            ok = h2 > 1e-9 and rho > 0.0
-            sx = h0 / h2 if ok else 0.0
-            sy = h1 / h2 if ok else 0.0
-            ok = ok and -0.5 <= sx <= ws - 0.5 and -0.5 <= sy <= hs - 0.5
-            sx = min(max(sx, 0.0), ws - 1.001)
-            sy = min(max(sy, 0.0), hs - 1.001)
-            x0 = int(sx)
-            yi = int(sy)
-            fx = sx - x0
-            fy = sy - yi
+            h2 = a20 * xf + c2 + rho * b2
+            inv = f32(1.0) / h2
+            sx = (a00 * xf + c0 + rho * b0) * inv
+            sy = (a10 * xf + c1 + rho * b1) * inv
+            front = (h2 > tiny) & (rho > zero)
+            ok[x] = front & (lo <= sx) & (sx <= hx) & (lo <= sy) & (sy <= hy)
+            px[x] = min(max(sx, zero), xmax) if front else zero
+            py[x] = min(max(sy, zero), ymax) if front else zero
+        for x in range(W):
+            x0 = int(px[x])
+            yi = int(py[x])
+            fx = px[x] - x0
             top = src[yi, x0] + fx * (src[yi, x0 + 1] - src[yi, x0])
             bot = src[yi + 1, x0] + fx * (src[yi + 1, x0 + 1] - src[yi + 1, x0])
-            out[y - ya, x] = top + fy * (bot - top)
-            if y0 <= y < y1:
-                valid[y - y0, x] = ok
+            out[y - ya, x] = top + (py[x] - yi) * (bot - top)
+        if y0 <= y < y1:
+            valid[y - y0, :] = ok
 
 
 @njit(cache=True, fastmath=True)
@@ -617,60 +648,93 @@ def _scaled(cam: PinholeCamera, s: float) -> PinholeCamera:
     return cam.scaled(w / cam.width, h / cam.height)
 
 
+def _candidates(rho_s: NDArray[np.float32], shifts: bool, radius: int) -> list[NDArray[np.float32]]:
+    """Propagation candidates of an inverse-depth map: its 4 neighbours' values (``shifts``) and the
+    largest / smallest known value within ``radius`` pixels."""
+    cands = (
+        [np.roll(rho_s, (dy, dx), axis=(0, 1)) for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0))]
+        if shifts
+        else []
+    )
+    if radius > 0:
+        ker = np.ones((2 * radius + 1,) * 2, np.uint8)
+        cands += [
+            np.asarray(cv2.dilate(rho_s, ker), np.float32),
+            np.asarray(cv2.erode(np.where(rho_s > 0, rho_s, np.float32(1e9)), ker), np.float32),
+        ]
+    return cands
+
+
 def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions):
     """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason."""
     H, W = ref.shape
     rho_near, rho_far = 1.0 / near, 1.0 / far
     s = o.sweep_scale
-    if s < 1:
-        cam_s = _scaled(ref_cam, s)
-        cams_s = [_scaled(c, s) for c in cams]
+
+    def stack(sc: float) -> _Stack:
+        if sc >= 1:
+            return _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
+        cam_s = _scaled(ref_cam, sc)
+        cams_s = [_scaled(c, sc) for c in cams]
         ref_s = cv2.resize(ref, (cam_s.width, cam_s.height), interpolation=cv2.INTER_AREA)
         greys_s = [
             cv2.resize(g, (c.width, c.height), interpolation=cv2.INTER_AREA) for g, c in zip(greys, cams_s)
         ]
-        coarse = _Stack(ref_s, cam_s, t_wr, greys_s, cams_s, t_ws)
-        fine = _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
-    else:
-        coarse = fine = _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
+        return _Stack(ref_s, cam_s, t_wr, greys_s, cams_s, t_ws)
+
+    coarse = stack(s)
+    fine = stack(1.0) if s < 1 else coarse
     span = coarse.disparity_span((rho_near, rho_far))
     if span < 1.0:
         return REASON_NO_PARALLAX
     n_planes = o.n_planes or int(min(max(math.ceil(span / o.plane_step_px) + 1, o.min_planes), o.max_planes))
     step = (rho_far - rho_near) / (n_planes - 1)
 
-    # 1. sweep
-    planes = rho_near + step * np.arange(n_planes)
+    # 1. sweep: every plane at sweep_scale, or (coarse_band) every second plane at half of it, then
+    # each pixel's winner +- coarse_band planes at sweep_scale
+    hc, wc = coarse.ref.shape
     stats_s = _box_stats(coarse.ref, o.window // 2)
-    pos, best, second = coarse.sweep(stats_s, np.zeros(coarse.ref.shape), planes, o.window, o)
-    rho_s = np.where(pos >= 0, rho_near + pos * step, 0.0).astype(np.float32)
-    bad_s = (pos < 0.5) | (pos > n_planes - 1.5) | (best - second < o.min_margin)
+    if o.coarse_band > 0 and min(hc, wc) >= 16:
+        top = stack(0.5 * s)
+        n_top = max(3, (n_planes + 2) // 2)
+        step_top = (rho_far - rho_near) / (n_top - 1)
+        planes = rho_near + step_top * np.arange(n_top)
+        stats_t = _box_stats(top.ref, o.window // 2)
+        pos, best, second = top.sweep(stats_t, np.zeros(top.ref.shape), planes, o.window, o)
+        rho_t = np.where(pos >= 0, rho_near + pos * step_top, 0.0).astype(np.float32)
+        bad_t = ((pos < 0.5) | (pos > n_top - 1.5) | (best - second < o.min_margin)).astype(np.uint8)
+        base = cv2.resize(rho_t, (wc, hc), interpolation=cv2.INTER_NEAREST)
+        band = o.coarse_band
+        pos, _, _ = coarse.sweep(stats_s, base, np.arange(-band, band + 1) * step, o.window, o)
+        rho_s = np.where(pos >= 0, base + (pos - band) * np.float32(step), 0.0).astype(np.float32)
+        bad_s = cv2.resize(bad_t, (wc, hc), interpolation=cv2.INTER_NEAREST).astype(bool) | (pos < 0)
+    else:
+        planes = rho_near + step * np.arange(n_planes)
+        pos, best, second = coarse.sweep(stats_s, np.zeros(coarse.ref.shape), planes, o.window, o)
+        rho_s = np.where(pos >= 0, rho_near + pos * step, 0.0).astype(np.float32)
+        bad_s = (pos < 0.5) | (pos > n_planes - 1.5) | (best - second < o.min_margin)
 
-    # 2. refine at full resolution
+    # 2. propagate (at sweep_scale or full resolution), refine at full resolution
     stats = _box_stats(ref, o.refine_window // 2)
 
     def up(a: NDArray) -> NDArray:
         return cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if s < 1 else a
 
-    base = up(rho_s)
-    _, score, _ = fine.sweep(stats, base, [0.0], o.refine_window, o, False)
-    cands = (
-        [np.roll(rho_s, (dy, dx), axis=(0, 1)) for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0))]
-        if s < 1
-        else []
-    )
-    if o.propagation_radius > 0:
-        ker = np.ones((2 * o.propagation_radius + 1,) * 2, np.uint8)
-        cands += [
-            np.asarray(cv2.dilate(rho_s, ker), np.float32),
-            np.asarray(cv2.erode(np.where(rho_s > 0, rho_s, np.float32(1e9)), ker), np.float32),
-        ]
-    for c in cands:
-        c = up(c)
-        _, sc, _ = fine.sweep(stats, c, [0.0], o.refine_window, o, False)
-        better = sc > score
-        base = np.where(better, c, base)
-        score = np.where(better, sc, score)
+    cands = _candidates(rho_s, s < 1, o.propagation_radius)
+    if o.propagate_at_sweep_scale:
+        _, score, _ = coarse.sweep(stats_s, rho_s, [0.0], o.window, o, False)
+        for c in cands:
+            _, sc, _ = coarse.sweep(stats_s, c, [0.0], o.window, o, False)
+            rho_s = np.where(sc > score, c, rho_s)
+            score = np.maximum(sc, score)
+        base = up(rho_s)
+    else:
+        base = up(rho_s)
+        _, score, _ = fine.sweep(stats, base, [0.0], o.refine_window, o, False)
+        for c in map(up, cands):
+            _, sc, _ = fine.sweep(stats, c, [0.0], o.refine_window, o, False)
+            base = np.where(sc > score, c, base)
+            score = np.maximum(sc, score)
     half = 0.5 * step
     pos, score, _ = fine.sweep(
         stats, base, np.arange(-o.refine_steps, o.refine_steps + 1) * half, o.refine_window, o
@@ -679,9 +743,10 @@ def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: f
     rho = base + (pos - o.refine_steps) * np.float32(half)
     for _ in range(o.surface_passes):
         base = cv2.medianBlur(np.where(valid, rho, 0).astype(np.float32), 5)
-        pos, score, _ = fine.sweep(stats, base, np.arange(-2, 3) * 0.25 * half, o.refine_window, o)
+        k = o.surface_steps
+        pos, score, _ = fine.sweep(stats, base, np.arange(-k, k + 1) * 0.25 * half, o.refine_window, o)
         valid &= pos >= 0
-        rho = base + (pos - 2) * np.float32(0.25 * half)
+        rho = base + (pos - k) * np.float32(0.25 * half)
 
     # 3. reject
     bad = up(bad_s.astype(np.uint8)).astype(bool) | ~valid | ~(rho > rho_far * 0.999)

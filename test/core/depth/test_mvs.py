@@ -183,6 +183,65 @@ def test_full_resolution_sweep_option():
     assert np.median(np.abs(inner[inner > 0] / 50.0 - 1)) < 0.005
 
 
+@pytest.mark.parametrize(
+    'kw',
+    [
+        {},
+        {  # bench_mvs FAST
+            'coarse_band': 2,
+            'propagate_at_sweep_scale': True,
+            'refine_steps': 2,
+            'surface_passes': 2,
+            'surface_steps': 1,
+        },
+        {'coarse_band': 1, 'surface_steps': 2},
+    ],
+)
+def test_sweep_variants_are_exact_on_a_plane(kw):
+    """The previous pipeline (every plane at sweep_scale, propagation at full resolution) and the
+    coarse-to-fine one both find the plane."""
+    cam, ref, t_wr, srcs, poses = plane_views((320, 240))
+    r = mvs.mvs_depth(ref, cam, t_wr, srcs, cam, poses, depth_range=(10.0, 500.0), options=MvsOptions(**kw))
+    inner = r.depth[10:-10, 10:-10]
+    assert (inner > 0).mean() > 0.9
+    assert np.median(np.abs(inner[inner > 0] / 50.0 - 1)) < 0.002
+
+
+def test_warp_rows_matches_a_float64_reference():
+    """The float32 warp against numpy: homography per pixel (float64), bilinear, border clamped."""
+    rng = np.random.default_rng(3)
+    src = rng.uniform(0, 255, (40, 50)).astype(np.float32)
+    a = np.array([[1.02, 0.03, -2.0], [-0.02, 0.98, 1.5], [1e-4, -2e-4, 1.0]])
+    b = np.array([30.0, -10.0, 0.05])
+    base = rng.uniform(-0.05, 0.2, (30, 60)).astype(np.float32)  # some rho <= 0: invalid
+    ya, yb, y0, y1 = 3, 27, 5, 25
+    out = np.empty((yb - ya, 60), np.float32)
+    valid = np.empty((y1 - y0, 60), np.bool_)
+    mvs._warp_rows(src, 40, 50, a, b, base, np.float32(0.01), ya, yb, out, valid, y0, y1)
+    ys, xs = np.mgrid[ya:yb, 0:60].astype(np.float64)
+    rho = base[ya:yb].astype(np.float64) + np.float64(np.float32(0.01))
+    h = [a[i, 0] * xs + a[i, 1] * ys + a[i, 2] + rho * b[i] for i in range(3)]
+    front = (h[2] > 1e-9) & (rho > 0)
+    sx, sy = h[0] / h[2], h[1] / h[2]
+    ok = front & (sx >= -0.5) & (sx <= 49.5) & (sy >= -0.5) & (sy <= 39.5)
+    edge = (
+        (np.abs(sx - 49.5) < 1e-3)
+        | (np.abs(sy - 39.5) < 1e-3)
+        | (np.abs(sx + 0.5) < 1e-3)
+        | (np.abs(sy + 0.5) < 1e-3)
+    )
+    sx = np.where(front, np.clip(sx, 0, 50 - 1.001), 0)
+    sy = np.where(front, np.clip(sy, 0, 40 - 1.001), 0)
+    x0, yi = sx.astype(int), sy.astype(int)
+    fx, fy = sx - x0, sy - yi
+    top = src[yi, x0] + fx * (src[yi, x0 + 1] - src[yi, x0])
+    bot = src[yi + 1, x0] + fx * (src[yi + 1, x0 + 1] - src[yi + 1, x0])
+    want = top + fy * (bot - top)
+    assert np.abs(out - want).max() < 0.05  # float32 positions: ~1e-4 px
+    assert np.array_equal(valid | edge[y0 - ya : y1 - ya], ok[y0 - ya : y1 - ya] | edge[y0 - ya : y1 - ya])
+    assert 0 < valid.mean() < 1
+
+
 # --------------------------------------------------------------------------------------------- neighbours
 
 
