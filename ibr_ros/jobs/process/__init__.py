@@ -137,7 +137,7 @@ def process_bag(
     stage.mkdir(parents=True)
     try:
         model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
-        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame)
+        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame, progress)
         t_write = time.perf_counter()
         previews = stage / 'previews'
         previews.mkdir()

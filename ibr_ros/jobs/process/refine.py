@@ -47,6 +47,7 @@ def refine_all(
     failures: dict[int, str] = {}
     warnings: list[str] = []
     attempts = 0
+    refined: set[int] = set()
     if progress is not None:
         progress('keyframes', 0, len(keyframes))
     while True:
@@ -69,16 +70,17 @@ def refine_all(
             LOG.warning('keyframe %d ns not refined: %s', job.stamp, failures[job.stamp])
             continue
         scheduler.done(job)
+        refined.add(job.stamp)
         failures.pop(job.stamp, None)
         kf.depth = result.refined.depth
         kf.confidence = result.refined.confidence
         kf.neighbours = job.neighbours
         LOG.info(
             'refined keyframe %d/%d (%d ns) with %d neighbours in %.2f s',
-            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), result.seconds,
+            len(refined), len(keyframes), job.stamp, len(job.neighbours), result.seconds,
         )  # fmt: skip
         if progress is not None:
-            progress('keyframes', len(scheduler.refined()), len(keyframes))
+            progress('keyframes', len(refined), len(keyframes))
     for s in scheduler.unrefined():
         failures.setdefault(s, 'no neighbour with enough overlap and parallax')
     return {

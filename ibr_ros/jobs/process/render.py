@@ -44,9 +44,11 @@ def render_all(
     model_frame = model[0].pose_frame
     renderer = NovelViewRenderer([], cfg.viewing.render)
     t0 = time.perf_counter()
-    for k in model:
+    for n_done, k in enumerate(model, 1):
         if k.pose_frame != model_frame:
             unusable[str(k.stamp)] = f'frame {k.pose_frame!r}, the model is in {model_frame!r}'
+            if progress is not None:
+                progress('model', n_done, len(model))
             continue
         i = renderer.add_view(
             SourceView(
@@ -62,6 +64,8 @@ def render_all(
         renderer.prepare([i])
         if (why := renderer.skip_reason(i)) is not None:
             unusable[str(k.stamp)] = why
+        if progress is not None:
+            progress('model', n_done, len(model))
     info['prepare_s'] = time.perf_counter() - t0
     camera = output_camera(cfg.viewing.width, cfg.viewing.height, cfg.viewing.hfov_deg, model[-1].camera)
     poses = interpolate_path([k.t_wc for k in model], n_views)
