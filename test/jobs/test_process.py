@@ -450,3 +450,15 @@ def test_progress_reports_every_stage_to_its_total(flight, params, tmp_path):
     assert seen['views'] == (2, 2)
     assert seen['write'] == (3 + 2, 3 + 2)  # keyframes and views
     assert seen['previews'] == (3 + 2, 3 + 2)
+
+
+def test_interrupted_run_leaves_no_output_and_no_spilled_arrays(flight, params, tmp_path, monkeypatch):
+    import ibr_ros.jobs.process as process
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(process, 'render_all', interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        process_bag(flight, tmp_path / 'out', ProcessOptions(params=params, max_keyframes=3, views=1))
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no out, no .out.spill-*, no .out.partial-*

@@ -17,6 +17,7 @@ from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.process.render import NovelView
+from ibr_ros.jobs.process.spill import loaded
 from msg_utils.flavor import Flavor
 
 #: Output topics (fully qualified: what the graph's relative names resolve to in the root namespace).
@@ -82,15 +83,15 @@ def _keyframe_events(k: Keyframe) -> list[tuple[int, str, object]]:
     header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
     info = msg_utils.pinhole_to_camera_info(k.camera, header, **rb)  # of the image and the depth map
     out: list[tuple[int, str, object]] = [
-        (0, 'image', msg_utils.numpy_to_image(k.rgb, 'rgb8', header, **rb)),
+        (0, 'image', msg_utils.numpy_to_image(loaded(k.rgb), 'rgb8', header, **rb)),
         (1, 'camera_info', info),
         (2, 'pose', msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)),
     ]
     if k.depth is not None:
-        out.append((3, 'depth', msg_utils.depth_m_to_image(k.depth, header, **rb)))
+        out.append((3, 'depth', msg_utils.depth_m_to_image(loaded(k.depth), header, **rb)))
         out.append((4, 'depth_info', info))
         if k.confidence is not None:
-            out.append((4, 'confidence', msg_utils.confidence_to_image(k.confidence, header, **rb)))
+            out.append((4, 'confidence', msg_utils.confidence_to_image(loaded(k.confidence), header, **rb)))
     return out
 
 

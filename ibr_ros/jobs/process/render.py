@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -15,6 +15,7 @@ from ibr_ros.core.render import NovelViewRenderer, ReplyStatus, SourceView, outp
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
+from ibr_ros.jobs.process.spill import remapped
 
 
 @dataclass
@@ -62,6 +63,11 @@ def render_all(
             )
         )
         renderer.prepare([i])
+        # Spilled arrays: fresh mappings for the keyframe and the renderer's view (same values), so
+        # that the pages the preparation read are not kept resident for every keyframe.
+        k.rgb = remapped(k.rgb)
+        k.depth, k.confidence = (None if a is None else remapped(a) for a in (k.depth, k.confidence))
+        renderer.views[i] = replace(renderer.views[i], rgb=k.rgb, depth=k.depth, confidence=k.confidence)
         if (why := renderer.skip_reason(i)) is not None:
             unusable[str(k.stamp)] = why
         if progress is not None:
