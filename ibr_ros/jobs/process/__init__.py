@@ -43,6 +43,10 @@ registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, 
 guess) and are undistorted with it (:func:`~ibr_ros.core.geometry.undistort.undistort_image`, valid pixels
 only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
 
+Memory does not grow with the flight: keyframe images, depth and confidence wait on disk in
+``.<out>.spill-<pid>`` next to the output folder (:mod:`~ibr_ros.jobs.process.spill`, removed when
+the run ends, however it ends) and the output bag is written one keyframe or view at a time.
+
 Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 params file
 (sections ``/**``, ``<node>`` or ``/<ns>/<node>``), so live and offline runs agree.
 
