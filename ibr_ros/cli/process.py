@@ -12,7 +12,9 @@ UNITS = {
     'reread': 'frame',
     'sfm': 'registration',
     'keyframes': 'keyframe',
+    'model': 'keyframe',
     'views': 'view',
+    'write': 'message group',
     'previews': 'image',
 }
 

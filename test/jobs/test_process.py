@@ -429,3 +429,36 @@ def test_target_keyframes_two_passes_skip_bad_images(flight, tmp_path):
     assert first.stopped
     with pytest.raises(UserError, match='target_keyframes'):
         process_configs(load_params(), ProcessOptions(target_keyframes=-1))
+
+
+def test_progress_reports_every_stage_to_its_total(flight, params, tmp_path):
+    """Each stage's bar (``ibr process`` draws one per stage, with an ETA) ends at its total, in order."""
+    seen: dict[str, tuple[int, int]] = {}
+    order: list[str] = []
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in seen:
+            order.append(stage)
+        assert done <= total
+        seen[stage] = (done, total)
+
+    options = ProcessOptions(params=params, max_keyframes=3, views=2)
+    s = process_bag(flight, tmp_path / 'out', options, progress)
+    assert order == ['frames', 'keyframes', 'model', 'views', 'write', 'previews']
+    assert seen['keyframes'] == (s['refined'], 3)
+    assert seen['model'] == (s['refined'], s['refined'])
+    assert seen['views'] == (2, 2)
+    assert seen['write'] == (3 + 2, 3 + 2)  # keyframes and views
+    assert seen['previews'] == (3 + 2, 3 + 2)
+
+
+def test_interrupted_run_leaves_no_output_and_no_spilled_arrays(flight, params, tmp_path, monkeypatch):
+    import ibr_ros.jobs.process as process
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(process, 'render_all', interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        process_bag(flight, tmp_path / 'out', ProcessOptions(params=params, max_keyframes=3, views=1))
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no out, no .out.spill-*, no .out.partial-*

@@ -34,21 +34,28 @@ Warnings are returned once each by :meth:`RefineScheduler.pop_warnings` for the 
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ibr_ros.core.depth.mvs import MvsOptions, MvsView, depth_range_from_points, select_neighbours
 from ibr_ros.core.flight.status import shard_of
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import validate_pose
 
 __all__ = [
+    'PROBE_GRID',
+    'NeighbourIndex',
     'RefineJob',
     'RefineScheduler',
     'ScheduleConfig',
     'axis_scene_depth',
     'parse_depth_range',
+    'probe_points',
 ]
 
 
@@ -166,6 +173,95 @@ class RefineJob:
         return [self.stamp, *self.neighbours]
 
 
+#: Slack of :class:`NeighbourIndex`'s prefilter, so that rounding never drops a view that
+#: :func:`~ibr_ros.core.depth.mvs.select_neighbours` keeps: degrees on the axis angle, pixels on the
+#: image bounds, radians on the viewing cone.
+_SLACK_DEG, _SLACK_PX, _SLACK_RAD = 1e-6, 1e-3, 1e-6
+
+#: Pixel lattice (per side) of ``select_neighbours``' probe points without sparse points.
+PROBE_GRID = 9
+
+
+def probe_points(camera: PinholeCamera, t_wc: NDArray[np.float64], depth: float) -> NDArray[np.float64]:
+    """World points (Mx3 m) of the :data:`PROBE_GRID` pixel lattice of a view at z-depth ``depth``
+    (m): the scene :func:`~ibr_ros.core.depth.mvs.select_neighbours` probes given a depth range."""
+    us = np.linspace(0, camera.width - 1, PROBE_GRID)
+    vs = np.linspace(0, camera.height - 1, PROBE_GRID)
+    uv = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2)
+    return camera.backproject(uv, np.full(len(uv), depth)) @ t_wc[:3, :3].T + t_wc[:3, 3]
+
+
+class NeighbourIndex:
+    """Poses and intrinsics of keyframes (in the given order) as arrays, to prefilter MVS neighbours.
+
+    :meth:`candidates` keeps a superset of the views :func:`~ibr_ros.core.depth.mvs.select_neighbours`
+    can pick (so it gives the same picks on the candidates alone) with array operations over all
+    views, instead of its per-view Python loop over the whole flight.
+    """
+
+    def __init__(self, views: Sequence[MvsView]) -> None:
+        self.views = list(views)
+        self.cameras = [v.camera for v in self.views]
+        self.poses = np.array([v.t_wc for v in self.views], dtype=np.float64).reshape(-1, 4, 4)
+        self.centres = self.poses[:, :3, 3]
+        self.axes = self.poses[:, :3, 2]
+        k = np.array([(c.fx, c.fy, c.cx, c.cy, c.width, c.height) for c in self.cameras], np.float64)
+        self._k = k.reshape(-1, 6)
+        fx, fy, cx, cy, w, h = self._k.T
+        du = np.maximum(cx + 0.5, w - 0.5 - cx) + _SLACK_PX
+        dv = np.maximum(cy + 0.5, h - 0.5 - cy) + _SLACK_PX
+        #: half-angle (rad) of the cone around the optical axis that holds every pixel's ray
+        self.half_angle = np.arctan(np.hypot(du / fx, dv / fy))
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def candidates(
+        self,
+        ref: int,
+        probes: NDArray[np.float64],
+        *,
+        max_view_angle_deg: float,
+        min_overlap: float,
+        among: ArrayLike | None = None,
+    ) -> NDArray[np.intp]:
+        """Sorted positions (``ref`` excluded; only those in ``among`` when given) of the views that can
+        be a source view of view ``ref`` whose scene is ``probes`` (Mx3 world points): optical axis
+        within ``max_view_angle_deg`` of ``ref``'s, and ``min_overlap`` of the probes in the image.
+
+        Rounding slack (:data:`_SLACK_DEG`, ...) errs on the side of keeping a view. Views whose
+        viewing cone misses the probes' bounding ball are dropped before any projection.
+        """
+        idx = np.arange(len(self)) if among is None else np.unique(np.asarray(among, dtype=np.intp))
+        idx = idx[idx != ref]
+        a0 = self.axes[ref]
+        cos = (self.axes[idx] @ a0) / np.maximum(
+            np.linalg.norm(self.axes[idx], axis=1) * np.linalg.norm(a0), 1e-12
+        )
+        idx = idx[cos >= math.cos(math.radians(min(max_view_angle_deg + _SLACK_DEG, 180.0)))]
+        m = probes.mean(axis=0)
+        r = float(np.linalg.norm(probes - m, axis=1).max())
+        v = m - self.centres[idx]
+        d = np.linalg.norm(v, axis=1)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            c = np.einsum('ij,ij->i', v, self.axes[idx]) / d
+            reach = self.half_angle[idx] + np.arcsin(np.clip(r / d, 0.0, 1.0)) + _SLACK_RAD
+        inside = d <= r * (1 + 1e-9) + 1e-9
+        idx = idx[inside | (np.arccos(np.clip(c, -1.0, 1.0)) <= reach)]
+        if idx.size == 0:
+            return idx
+        pc = np.einsum('mpk,mkl->mpl', probes[None] - self.centres[idx, None], self.poses[idx, :3, :3])
+        fx, fy, cx, cy, w, h = (col[:, None] for col in self._k[idx].T)
+        z = pc[..., 2]
+        with np.errstate(divide='ignore', invalid='ignore'):
+            u = pc[..., 0] / z * fx + cx
+            vv = pc[..., 1] / z * fy + cy
+        lo = -0.5 - _SLACK_PX
+        vis = (z > 0) & (u >= lo) & (u <= w - 0.5 + _SLACK_PX) & (vv >= lo) & (vv <= h - 0.5 + _SLACK_PX)
+        count = vis.sum(axis=1)
+        return idx[(count >= 1) & (count >= (min_overlap - 1e-9) * len(probes))]
+
+
 @dataclass(eq=False)
 class _Keyframe:
     stamp: int
@@ -175,6 +271,17 @@ class _Keyframe:
     failed_with: int = -1  # neighbour count of the last failed attempt
     alone_warned: bool = False
     elsewhere: bool = False  # its depth was published by another worker
+    checked: bool = False  # pose and camera validated
+    # cached ((near, far), from_points, probe range), valid for the key (epoch, arrivals; -1: any)
+    rng: tuple[tuple[float, float], bool, tuple[float, float]] | None = None
+    rng_key: tuple[int, int] = (-1, -1)
+    # cached neighbour stamps, chosen with probe range nbrs_rng in epoch nbrs_epoch among the first
+    # nbrs_at arrivals (a later arrival only matters when it passes the prefilter)
+    nbrs: tuple[int, ...] | None = None
+    nbrs_rng: tuple[float, float] = (0.0, 0.0)
+    nbrs_epoch: int = -1
+    nbrs_at: int = 0
+    probes: NDArray[np.float64] | None = None
 
 
 class RefineScheduler:
@@ -192,6 +299,11 @@ class RefineScheduler:
         self._owns: Callable[[int], bool] = self._shard_owns
         self._points: np.ndarray | None = None
         self._observed: Mapping[int, np.ndarray] = {}
+        self._order: list[_Keyframe] = []  # by stamp
+        self._arrivals: list[_Keyframe] = []  # in arrival order: len() is the keyframe set's version
+        self._epoch = 0  # bumped when cached ranges and neighbours become invalid (set_points)
+        self._index: NeighbourIndex | None = None  # of _order, rebuilt after arrivals
+        self._pos: dict[int, int] = {}  # stamp -> position in _order and _index
 
     def __len__(self) -> int:
         return len(self._kfs)
@@ -230,7 +342,11 @@ class RefineScheduler:
         stamp = int(stamp_ns)
         if stamp in self._kfs:
             return False
-        self._kfs[stamp] = _Keyframe(stamp, view, self.is_mine(stamp), elsewhere=stamp in self._elsewhere)
+        kf = _Keyframe(stamp, view, self.is_mine(stamp), elsewhere=stamp in self._elsewhere)
+        self._kfs[stamp] = kf
+        bisect.insort(self._order, kf, key=lambda k: k.stamp)
+        self._arrivals.append(kf)
+        self._index = None
         return True
 
     def view(self, stamp_ns: int) -> MvsView | None:
@@ -257,6 +373,7 @@ class RefineScheduler:
         pts = pts[np.isfinite(pts).all(axis=1)]
         self._points = pts if len(pts) else None
         self._observed = dict(observed or {})
+        self._epoch += 1
 
     def pop_warnings(self) -> list[str]:
         """Warnings raised since the last call (each situation is reported once)."""
@@ -265,26 +382,83 @@ class RefineScheduler:
 
     def depth_range(self, stamp_ns: int) -> tuple[float, float]:
         """MVS (near, far) in metres for the keyframe ``stamp_ns`` given the other keyframes."""
-        kf = self._kfs[int(stamp_ns)]
-        return self._range(kf, [k for k in self._kfs.values() if k is not kf])[0]
+        return self._range(self._kfs[int(stamp_ns)])[0]
 
-    def _range(
-        self, kf: _Keyframe, others: list[_Keyframe]
-    ) -> tuple[tuple[float, float], bool, tuple[float, float]]:
+    def _indexed(self) -> NeighbourIndex:
+        """The neighbour index of all keyframes (rebuilt after new arrivals)."""
+        if self._index is None:
+            self._index = NeighbourIndex([k.view for k in self._order])
+            self._pos = {k.stamp: i for i, k in enumerate(self._order)}
+        return self._index
+
+    def _check_views(self) -> None:
+        """Raise ValueError for a keyframe without a rigid pose or an undistorted pinhole camera
+        (each keyframe checked once; :func:`select_neighbours` would refuse it)."""
+        for kf in self._order:
+            if kf.checked:
+                continue
+            validate_pose(kf.view.t_wc, field=f'keyframe {kf.stamp} ns t_wc')
+            cam = kf.view.camera
+            if not isinstance(cam, PinholeCamera):
+                raise ValueError(
+                    f'keyframe {kf.stamp} ns camera must be a PinholeCamera, got {type(cam).__name__}'
+                )
+            if cam.is_distorted:
+                raise ValueError(
+                    f'keyframe {kf.stamp} ns camera has distortion {cam.d.tolist()}: '
+                    'undistort the images first'
+                )
+            kf.checked = True
+
+    def _range(self, kf: _Keyframe) -> tuple[tuple[float, float], bool, tuple[float, float]]:
         """(near, far), whether it comes from the sparse points, and the range whose geometric mean
         is the depth at which :func:`select_neighbours` probes the overlap (the scene depth, not the
-        far end of a sweep that reaches beyond the horizon)."""
+        far end of a sweep that reaches beyond the horizon); cached (a range estimated from the
+        other keyframes only until the next arrival)."""
+        now = (self._epoch, len(self._arrivals))
+        if kf.rng is not None and kf.rng_key in (now, (self._epoch, -1)):
+            return kf.rng
+        rng, from_points, probe, from_others = self._compute_range(kf)
+        kf.rng, kf.rng_key = (rng, from_points, probe), now if from_others else (self._epoch, -1)
+        return kf.rng
+
+    def _compute_range(self, kf: _Keyframe) -> tuple[tuple[float, float], bool, tuple[float, float], bool]:
+        """(near, far), whether it comes from the sparse points, the probe range (:meth:`_range`),
+        whether from the other keyframes."""
         cfg = self.config
         if cfg.depth_range is not None:
-            return cfg.depth_range, False, cfg.depth_range
+            return cfg.depth_range, False, cfg.depth_range, False
         if self._points is not None:
             rng = depth_range_from_points(self._points, kf.view.camera, kf.view.t_wc, margin=POINTS_MARGIN)
             if rng is not None:
-                return rng, True, rng
-        s = cfg.scene_depth_m or axis_scene_depth(kf.view.t_wc, [o.view.t_wc for o in others])
-        if s is None:
-            c = kf.view.t_wc[:3, 3]
-            d = sorted(float(np.linalg.norm(o.view.t_wc[:3, 3] - c)) for o in others)[:2]
+                return rng, True, rng, False
+        if cfg.scene_depth_m:
+            s = cfg.scene_depth_m
+            return (
+                (s * cfg.near_ratio, s * cfg.far_ratio),
+                False,
+                (s * cfg.near_ratio, s / cfg.near_ratio),
+                False,
+            )
+        index = self._indexed()
+        i = self._pos[kf.stamp]
+        # axis_scene_depth over the keyframes whose axes can converge with this one (3-90 deg
+        # apart, with slack): the others are skipped by it anyway, so the median is the same.
+        b = index.axes @ index.axes[i]
+        near = (b >= math.cos(math.radians(90.0)) - 1e-9) & (b <= math.cos(math.radians(3.0)) + 1e-9)
+        near[i] = False
+        axis = axis_scene_depth(index.poses[i], list(index.poses[near]))
+        if axis is not None:
+            s = axis
+        else:
+            c = index.centres[i]
+            dist = np.linalg.norm(index.centres - c, axis=1)
+            dist[i] = np.inf
+            d: list[float] = []
+            if len(dist) > 1:
+                second = float(np.partition(dist, min(1, len(dist) - 2))[min(1, len(dist) - 2)])
+                close = np.flatnonzero(dist <= second * (1 + 1e-9) + 1e-12)
+                d = sorted(float(np.linalg.norm(index.poses[j][:3, 3] - c)) for j in close)[:2]
             s = 12.5 * max(float(np.mean(d)), 0.1) if d else 12.5 * 0.1
             if not self._range_warned:
                 self._range_warned = True
@@ -292,7 +466,38 @@ class RefineScheduler:
                     f'optical axes do not converge: scene depth guessed as {s:.1f} m from the keyframe '
                     'spacing; set scene_depth_m or depth_range'
                 )
-        return (s * cfg.near_ratio, s * cfg.far_ratio), False, (s * cfg.near_ratio, s / cfg.near_ratio)
+        return (s * cfg.near_ratio, s * cfg.far_ratio), False, self._probe(s), True
+
+    def _probe(self, scene_depth: float) -> tuple[float, float]:
+        """The probe range of a scene depth (m): its geometric mean is the scene depth."""
+        return scene_depth * self.config.near_ratio, scene_depth / self.config.near_ratio
+
+    def _neighbours(self, kf: _Keyframe, rng: tuple[float, float]) -> tuple[int, ...]:
+        """Stamps of :func:`select_neighbours`' picks for ``kf`` over ``rng`` among all keyframes,
+        computed on the :class:`NeighbourIndex` candidates only and cached until a new keyframe
+        passes the prefilter (or the range changes)."""
+        index = self._indexed()
+        i = self._pos[kf.stamp]
+        options = self.config.mvs.neighbour_options()
+        pre = {k: options[k] for k in ('max_view_angle_deg', 'min_overlap')}
+        version = len(self._arrivals)
+        if kf.nbrs is not None and kf.nbrs_epoch == self._epoch and kf.nbrs_rng == rng:
+            if kf.nbrs_at == version:
+                return kf.nbrs
+            new = [self._pos[k.stamp] for k in self._arrivals[kf.nbrs_at :]]
+            assert kf.probes is not None
+            if not index.candidates(i, kf.probes, among=new, **pre).size:
+                kf.nbrs_at = version
+                return kf.nbrs
+        kf.probes = probe_points(kf.view.camera, index.poses[i], math.sqrt(rng[0] * rng[1]))
+        sub = np.union1d(index.candidates(i, kf.probes, **pre), [i])
+        picks = select_neighbours(
+            int(np.searchsorted(sub, i)), index.poses[sub], [index.cameras[j] for j in sub],
+            depth_range=rng, **options,
+        )  # fmt: skip
+        kf.nbrs = tuple(self._order[int(sub[p])].stamp for p in picks)
+        kf.nbrs_rng, kf.nbrs_epoch, kf.nbrs_at = rng, self._epoch, version
+        return kf.nbrs
 
     def next_job(self, flush: bool = False) -> RefineJob | None:
         """The oldest keyframe of this worker due for (re)refinement, or None.
@@ -300,29 +505,26 @@ class RefineScheduler:
         ``flush``: no more keyframes are expected for now, refine with a single neighbour too.
         Raises ValueError from neighbour selection on a degenerate keyframe set.
         """
-        kfs = sorted(self._kfs.values(), key=lambda k: k.stamp)
-        if len(kfs) < 2:
+        if len(self._order) < 2:
             return None
+        self._check_views()
         cfg = self.config
-        poses = np.stack([k.view.t_wc for k in kfs])
-        cams = [k.view.camera for k in kfs]
-        options = cfg.mvs.neighbour_options()
-        for i, kf in enumerate(kfs):
+        for kf in self._order:
             if not kf.mine or kf.elsewhere or (kf.used and not cfg.refine_again):
                 continue
-            rng, from_points, probe = self._range(kf, kfs[:i] + kfs[i + 1 :])
-            nbrs = select_neighbours(i, poses, cams, depth_range=probe, **options)
+            rng, from_points, probe = self._range(kf)
+            nbrs = self._neighbours(kf, probe)
             n = len(nbrs)
             if kf.used:
                 due = n > len(kf.used) and n > kf.failed_with
             else:
                 due = (n >= cfg.min_neighbours or (flush and n >= 1)) and n > kf.failed_with
             if due:
-                chosen = [kfs[j] for j in nbrs]
+                chosen = [self._kfs[s] for s in nbrs]
                 return RefineJob(
                     kf.stamp,
                     kf.view,
-                    tuple(k.stamp for k in chosen),
+                    nbrs,
                     tuple(k.view for k in chosen),
                     rng,
                     again=bool(kf.used),

@@ -50,7 +50,9 @@ class SplatRenderer(NovelViewRenderer):
     def prepare(self, indices: Sequence[int] | None = None) -> None:
         """Nothing to prepare: splatting keeps no per-view cache."""
 
-    def _render_views(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
+    def _render_views(
+        self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: Sequence[int]
+    ) -> Rendered:
         cands = cands[: min(self.config.n_views, self.n_splat)]
         h, w = camera.height, camera.width
         out_rgb = np.zeros((h, w, 3), np.uint8)
@@ -101,7 +103,9 @@ class UlrRenderer(NovelViewRenderer):
     def prepare(self, indices: Sequence[int] | None = None) -> None:
         """Nothing to prepare: ULR keeps no per-view cache."""
 
-    def _render_views(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
+    def _render_views(
+        self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: Sequence[int]
+    ) -> Rendered:
         cands = cands[: self.config.n_views]
         cfg = self.config
         h, w = camera.height, camera.width

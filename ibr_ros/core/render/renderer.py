@@ -81,8 +81,9 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
+from typing import overload
 
 import cv2
 import numba
@@ -173,6 +174,52 @@ class Rendered:
             reason=reason,
             skipped_views=sorted(skipped),
         )
+
+
+class NearestFirst(Sequence[int]):
+    """View indices ``idx`` ordered by ``dist`` (ties: in ``idx`` order, as a stable sort), sorted
+    lazily: a renderer reads the first few, so only those are sorted (a partial sort of a few dozen
+    nearest; the whole order only when more are read)."""
+
+    def __init__(self, idx: NDArray[np.intp], dist: NDArray[np.float64], first: int = 32) -> None:
+        self._idx, self._dist = idx, dist
+        self._order: list[int] = []
+        self._first = first
+
+    def _sort(self, k: int) -> None:
+        """Make the first ``k`` (at least) of the order known."""
+        n = len(self._idx)
+        if len(self._order) >= min(k, n):
+            return
+        if k < n and not self._order:
+            kth = np.partition(self._dist, k - 1)[k - 1]
+            sel = np.flatnonzero(self._dist <= kth)  # every tie of the k-th: the same prefix as a full sort
+            if len(sel) < n:
+                sel = sel[np.argsort(self._dist[sel], kind='stable')]
+                self._order = [int(i) for i in self._idx[sel]]
+                return
+        self._order = [int(i) for i in self._idx[np.argsort(self._dist, kind='stable')]]
+
+    def __len__(self) -> int:
+        return len(self._idx)
+
+    @overload
+    def __getitem__(self, key: int) -> int: ...
+    @overload
+    def __getitem__(self, key: slice) -> list[int]: ...
+    def __getitem__(self, key: int | slice) -> int | list[int]:
+        if isinstance(key, slice):
+            prefix = key.step is None and (key.start or 0) >= 0 and key.stop is not None and key.stop >= 0
+            self._sort(max(key.stop, self._first) if prefix else len(self))
+            return self._order[key]
+        self._sort(max(key + 1, self._first) if key >= 0 else len(self))
+        return self._order[key]
+
+    def __iter__(self) -> Iterator[int]:
+        for i in range(len(self)):
+            if i >= len(self._order):
+                self._sort(self._first if i < self._first else len(self))
+            yield self._order[i]
 
 
 @dataclass(frozen=True, eq=False)
@@ -459,8 +506,9 @@ class NovelViewRenderer:
             return float(self.config.max_distance_m)
         return self.config.far_factor * self._scene_depth if math.isfinite(self._scene_depth) else math.inf
 
-    def _candidates(self, t_wn: NDArray[np.float64]) -> tuple[list[int], str | None]:
-        """Usable views facing the query direction, nearest first, or a reason why there are none."""
+    def _candidates(self, t_wn: NDArray[np.float64]) -> tuple[Sequence[int], str | None]:
+        """Usable views facing the query direction, nearest first (:class:`NearestFirst`: sorted as
+        far as read), or a reason why there are none."""
         idx = np.flatnonzero(self._usable)
         if idx.size == 0:
             return [], 'no usable source views'
@@ -469,14 +517,14 @@ class NovelViewRenderer:
         if idx.size == 0:
             return [], 'no source view faces the query direction'
         dist = np.linalg.norm(self._centres[idx] - t_wn[:3, 3], axis=1)
-        order = np.argsort(dist, kind='stable')
+        nearest = float(dist.min())
         limit = self.distance_limit()
-        if dist[order[0]] > limit:
-            return [], f'query is {dist[order[0]]:.1f} m from the nearest source view (limit {limit:.1f} m)'
-        return [int(i) for i in idx[order]], None
+        if nearest > limit:
+            return [], f'query is {nearest:.1f} m from the nearest source view (limit {limit:.1f} m)'
+        return NearestFirst(idx, dist), None
 
     # -- rendering ------------------------------------------------------------------------------
-    def _query_pose(self, t_wc: ArrayLike) -> tuple[NDArray[np.float64] | None, list[int], str | None]:
+    def _query_pose(self, t_wc: ArrayLike) -> tuple[NDArray[np.float64] | None, Sequence[int], str | None]:
         """Validated pose, candidate views and the reason nothing can be rendered (None: try).
 
         Raises ValueError for a ``t_wc`` that is not a numeric 4x4 matrix.
@@ -531,7 +579,9 @@ class NovelViewRenderer:
             np.empty((h, w), np.float32),
         )
 
-    def _render_views(self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: list[int]) -> Rendered:
+    def _render_views(
+        self, t_wn: NDArray[np.float64], camera: PinholeCamera, cands: Sequence[int]
+    ) -> Rendered:
         """Render from the first usable of ``cands`` (usable views facing ``t_wn``, nearest first).
 
         ``t_wn``: the validated novel camera-to-world pose. The evaluation baselines

@@ -43,6 +43,10 @@ registered keyframes get SfM's refined shared camera (not the bag's CameraInfo, 
 guess) and are undistorted with it (:func:`~ibr_ros.core.geometry.undistort.undistort_image`, valid pixels
 only, same size): MVS needs undistorted pinholes. From there on as for a posed bag.
 
+Memory does not grow with the flight: keyframe images, depth and confidence wait on disk in
+``.<out>.spill-<pid>`` next to the output folder (:mod:`~ibr_ros.jobs.process.spill`, removed when
+the run ends, however it ends) and the output bag is written one keyframe or view at a time.
+
 Parameters: ``config/<node>.yaml`` of the three nodes, overridden by a ROS 2 params file
 (sections ``/**``, ``<node>`` or ``/<ns>/<node>``), so live and offline runs agree.
 
@@ -80,10 +84,11 @@ from ibr_ros.jobs.process.evaluate import evaluate_ground_truth
 from ibr_ros.jobs.process.frames import Keyframe, subsample
 from ibr_ros.jobs.process.options import ProcessOptions, Progress
 from ibr_ros.jobs.process.output import OUT_TOPICS, json_default, summary_markdown, write_bag
-from ibr_ros.jobs.process.params import NODES, load_params, process_configs
+from ibr_ros.jobs.process.params import NODES, ProcessConfigs, load_params, process_configs
 from ibr_ros.jobs.process.refine import refine_all
 from ibr_ros.jobs.process.render import NovelView, render_all
 from ibr_ros.jobs.process.sfm import GPS_MAX_GAP_S, register_keyframes
+from ibr_ros.jobs.process.spill import SpillStore
 
 __all__ = [
     'GPS_MAX_GAP_S',
@@ -117,27 +122,46 @@ def process_bag(
     params = load_params(o.params)
     cfg = process_configs(params, o)
     threads = _set_threads(o.threads)
+    if out.parent.is_dir():
+        _remove_stale_stages(out)
+    # Keyframe images, depth and confidence wait on disk next to out (memory does not grow with
+    # the flight; spill.py); the folder goes when the run ends, however it ends.
+    with SpillStore(out.parent / f'.{out.name}.spill-{os.getpid()}') as store:
+        return _process(bag, out, o, params, cfg, threads, store, progress)
+
+
+def _process(
+    bag: Path,
+    out: Path,
+    o: ProcessOptions,
+    params: dict,
+    cfg: ProcessConfigs,
+    threads: int,
+    store: SpillStore,
+    progress: Progress | None,
+) -> dict[str, object]:
+    """:func:`process_bag` once its options are checked, with keyframe arrays spilled to ``store``."""
     t_start = time.perf_counter()
-    sub = subsample(bag, cfg, o, progress)
+    sub = subsample(bag, cfg, o, progress, spill=lambda a: store.put(a, 'rgb'))
     keyframes = sub.keyframes
     t_sub = time.perf_counter()
     sfm_info, sparse = None, None
     if sub.sfm_why is not None:
         keyframes, cfg, sfm_info, sparse = register_keyframes(sub, cfg, o.threads, progress)
+        for k in keyframes:  # undistorted in memory: spilled again
+            k.rgb = store.put(k.rgb, 'rgb')
     t_sfm = time.perf_counter()
-    refine_info = refine_all(keyframes, cfg, progress, sparse)
+    refine_info = refine_all(keyframes, cfg, progress, sparse, spill=store.put)
     t_ref = time.perf_counter()
     views, render_info = render_all(keyframes, cfg, o.views, progress)
     t_render = time.perf_counter()
     # Everything goes into a staging folder next to out, renamed to out once complete: an
     # interrupted or failed run leaves the previous result as it was.
     stage = out.parent / f'.{out.name}.partial-{os.getpid()}'
-    if out.parent.is_dir():
-        _remove_stale_stages(out)
     stage.mkdir(parents=True)
     try:
         model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
-        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame)
+        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame, progress)
         t_write = time.perf_counter()
         previews = stage / 'previews'
         previews.mkdir()
@@ -258,7 +282,7 @@ def _remove_stale_stages(out: Path) -> None:
     """Staging and old-result folders of earlier runs for ``out`` whose process is gone."""
     for p in out.parent.glob(f'.{out.name}.*-*'):
         kind, _, pid = p.name.rpartition('-')
-        if not kind.endswith(('.partial', '.old')) or not pid.isdigit():
+        if not kind.endswith(('.partial', '.old', '.spill')) or not pid.isdigit():
             continue
         if not Path(f'/proc/{pid}').exists() or int(pid) == os.getpid():
             shutil.rmtree(p, ignore_errors=True)

@@ -18,6 +18,7 @@ from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.render import NovelView
+from ibr_ros.jobs.process.spill import loaded
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 
@@ -103,10 +104,10 @@ def evaluate_ground_truth(
     total = len(keyframes) + len(views)
     depth_rows, view_rows = [], []
     for i, k in enumerate(keyframes):
-        tiles = [_label(cv2.cvtColor(k.rgb, cv2.COLOR_RGB2BGR), f'keyframe {i}')]
+        tiles = [_label(cv2.cvtColor(loaded(k.rgb), cv2.COLOR_RGB2BGR), f'keyframe {i}')]
         truth_pose = k.bag_t_wc if align is not None else k.t_wc
         truth = gt.render(truth_pose, k.camera) if gt is not None and truth_pose is not None else None
-        depth = k.depth * np.float32(scale) if k.depth is not None else None
+        depth = loaded(k.depth) * np.float32(scale) if k.depth is not None else None
         maps = [m for m in (depth, truth.depth if truth is not None else None) if m is not None]
         lo, hi = _depth_limits(*maps) if maps else (1.0, 2.0)
         if depth is not None:

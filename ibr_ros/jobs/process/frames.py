@@ -9,7 +9,7 @@ import logging
 import math
 import time
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -251,10 +251,17 @@ def _select_topics(
     return out, why
 
 
-def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progress | None) -> Subsampled:
+def subsample(
+    bag: Path,
+    cfg: ProcessConfigs,
+    o: ProcessOptions,
+    progress: Progress | None,
+    spill: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> Subsampled:
     """The frame_subsampler's decisions over the whole bag, in bag-time order (without poses in SfM
     mode, unless ``sfm_mode`` is ``always`` on a bag with poses); with ``target_keyframes`` and poses,
     :func:`~ibr_ros.core.flight.keyframes.select_keyframes` over the whole flight instead (two passes).
+    ``spill``: where each keyframe's image goes once chosen (e.g. :meth:`SpillStore.put`).
     """
     fs = cfg.subsampler
     decisions: Counter = Counter()
@@ -267,7 +274,7 @@ def subsample(bag: Path, cfg: ProcessConfigs, o: ProcessOptions, progress: Progr
         t_wc, pose_frame = pose if pose is not None and sfm_why is None else (np.full((4, 4), np.nan), '')
         bag_pose = pose[0] if pose is not None else reading.bag_poses.get(frame.stamp)
         camera_frame = frame.camera_frame or 'camera_optical'
-        image = frame.rgb
+        image = frame.rgb if spill is None else spill(frame.rgb)
         bag_t_wc = bag_pose if sfm_why is not None else None
         keyframes.append(
             Keyframe(

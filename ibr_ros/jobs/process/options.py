@@ -8,8 +8,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-#: ``progress(stage, done, total)``; stages ``frames``, ``reread`` (target_keyframes: the second pass),
-#: ``sfm``, ``keyframes``, ``views``, ``previews``.
+#: ``progress(stage, done, total)``, in this order; stages ``frames``, ``reread`` (target_keyframes: the
+#: second pass), ``sfm``, ``keyframes`` (refined), ``model`` (the renderer's keyframes prepared),
+#: ``views`` (rendered), ``write`` (keyframes and views in the output bag), ``previews``.
 Progress = Callable[[str, int, int], None]
 
 

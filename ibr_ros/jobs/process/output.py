@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import Counter
 from pathlib import Path
@@ -13,8 +14,10 @@ import numpy as np
 import msg_utils
 from ibr_ros.bag import BagWriter, OfferedQos
 from ibr_ros.jobs.process.frames import Keyframe
+from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.process.render import NovelView
+from ibr_ros.jobs.process.spill import loaded
 from msg_utils.flavor import Flavor
 
 #: Output topics (fully qualified: what the graph's relative names resolve to in the root namespace).
@@ -43,42 +46,69 @@ def write_bag(
     views: list[NovelView],
     cfg: ProcessConfigs,
     model_frame: str,
+    progress: Progress | None = None,
 ) -> dict[str, int]:
-    """The output bag (a new ``path``), every message logged at its header stamp, in time order."""
-    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
-    events: list[tuple[int, int, str, object]] = []
-    for k in keyframes:
-        header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
-        info = msg_utils.pinhole_to_camera_info(k.camera, header, **rb)  # of the image and the depth map
-        events.append((k.stamp, 0, 'image', msg_utils.numpy_to_image(k.rgb, 'rgb8', header, **rb)))
-        events.append((k.stamp, 1, 'camera_info', info))
-        pose = msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)
-        events.append((k.stamp, 2, 'pose', pose))
-        if k.depth is not None:
-            events.append((k.stamp, 3, 'depth', msg_utils.depth_m_to_image(k.depth, header, **rb)))
-            events.append((k.stamp, 4, 'depth_info', info))
-            if k.confidence is not None:
-                conf = msg_utils.confidence_to_image(k.confidence, header, **rb)
-                events.append((k.stamp, 4, 'confidence', conf))
-    for v in views:
-        query = msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb)
-        events.append((v.stamp, 5, 'query', query))
-        header = msg_utils.make_header(v.stamp, cfg.viewing.frame_id, **rb)
-        if v.rgb is not None and v.camera is not None:
-            events.append((v.stamp, 6, 'view', msg_utils.numpy_to_image(v.rgb, 'rgb8', header, **rb)))
-            events.append((v.stamp, 7, 'view_info', msg_utils.pinhole_to_camera_info(v.camera, header, **rb)))
-        if v.status is not None:
-            status = msg_utils.reply_to_diagnostics(v.status, header, name='/view_renderer', **rb)
-            events.append((v.stamp, 8, 'view_status', status))
-    events.sort(key=lambda e: (e[0], e[1]))
+    """The output bag (a new ``path``), every message logged at its header stamp, in time order.
+
+    Streamed: the messages of one keyframe or view at a time are converted, written and dropped
+    (peak memory does not grow with the flight). ``progress('write', done, total)`` per item.
+    """
+    items = sorted(
+        [(k.stamp, 0, i) for i, k in enumerate(keyframes)] + [(v.stamp, 1, j) for j, v in enumerate(views)]
+    )
     counts: Counter = Counter()
+    done = 0
     with BagWriter(path) as writer:
         for name, msgtype in OUT_TOPICS.values():
             writer.add_topic(name, msgtype, MODEL_QOS if name.startswith('/keyframes/') else REPLY_QOS)
-        for stamp, _, key, msg in events:
-            writer.write(OUT_TOPICS[key][0], msg, stamp)
-            counts[OUT_TOPICS[key][0]] += 1
+        for stamp, group in itertools.groupby(items, key=lambda e: e[0]):
+            events: list[tuple[int, str, object]] = []
+            for _, kind, i in group:
+                events += (
+                    _keyframe_events(keyframes[i]) if kind == 0 else _view_events(views[i], cfg, model_frame)
+                )
+                done += 1
+            events.sort(key=lambda e: e[0])  # stable: messages at one stamp by rank, as before streaming
+            for _, key, msg in events:
+                writer.write(OUT_TOPICS[key][0], msg, stamp)
+                counts[OUT_TOPICS[key][0]] += 1
+            if progress is not None:
+                progress('write', done, len(items))
     return {name: counts[name] for name, _ in OUT_TOPICS.values()}
+
+
+def _keyframe_events(k: Keyframe) -> list[tuple[int, str, object]]:
+    """A keyframe's messages (rank at its stamp, topic key, message)."""
+    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
+    header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
+    info = msg_utils.pinhole_to_camera_info(k.camera, header, **rb)  # of the image and the depth map
+    out: list[tuple[int, str, object]] = [
+        (0, 'image', msg_utils.numpy_to_image(loaded(k.rgb), 'rgb8', header, **rb)),
+        (1, 'camera_info', info),
+        (2, 'pose', msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)),
+    ]
+    if k.depth is not None:
+        out.append((3, 'depth', msg_utils.depth_m_to_image(loaded(k.depth), header, **rb)))
+        out.append((4, 'depth_info', info))
+        if k.confidence is not None:
+            out.append((4, 'confidence', msg_utils.confidence_to_image(loaded(k.confidence), header, **rb)))
+    return out
+
+
+def _view_events(v: NovelView, cfg: ProcessConfigs, model_frame: str) -> list[tuple[int, str, object]]:
+    """A novel view's messages (rank at its stamp, topic key, message): query, image, status."""
+    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
+    out: list[tuple[int, str, object]] = [
+        (5, 'query', msg_utils.matrix_to_pose_stamped(v.t_wc, stamp_ns=v.stamp, frame_id=model_frame, **rb))
+    ]
+    header = msg_utils.make_header(v.stamp, cfg.viewing.frame_id, **rb)
+    if v.rgb is not None and v.camera is not None:
+        out.append((6, 'view', msg_utils.numpy_to_image(v.rgb, 'rgb8', header, **rb)))
+        out.append((7, 'view_info', msg_utils.pinhole_to_camera_info(v.camera, header, **rb)))
+    if v.status is not None:
+        status = msg_utils.reply_to_diagnostics(v.status, header, name='/view_renderer', **rb)
+        out.append((8, 'view_status', status))
+    return out
 
 
 def selection_line(sel: dict) -> str:

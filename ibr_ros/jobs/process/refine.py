@@ -5,6 +5,10 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
 
 from ibr_ros.core.depth.job_mvs import PhotometricCache
 from ibr_ros.core.depth.mono import MonoModelError
@@ -16,9 +20,16 @@ from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
 from ibr_ros.jobs.process.sfm import SparsePoints
+from ibr_ros.jobs.process.spill import loaded
 from msg_utils import CONVERSION_ERRORS
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
+
+
+def _loaded(v: MvsView) -> MvsView:
+    """``v`` with its image in memory (a spilled image read by file, its mapping left untouched)."""
+    rgb = loaded(v.rgb)
+    return v if rgb is v.rgb else MvsView(rgb, v.camera, v.t_wc)
 
 
 def refine_all(
@@ -26,6 +37,7 @@ def refine_all(
     cfg: ProcessConfigs,
     progress: Progress | None,
     sparse: SparsePoints | None = None,
+    spill: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> dict[str, object]:
     """MVS + refinement of every keyframe, oldest first, with the whole flight known.
 
@@ -33,7 +45,9 @@ def refine_all(
     eval rephoto`` leaves its held-out keyframes out this way). Sets each refined keyframe's
     ``depth`` and ``neighbours``; returns ``attempts``, ``not_refined`` (stamp -> why) and
     ``warnings`` (the scheduler's, also logged). ``sparse``: SfM's sparse points (they bound each
-    keyframe's depth range and seed its depth, :meth:`RefineScheduler.set_points`).
+    keyframe's depth range and seed its depth, :meth:`RefineScheduler.set_points`). ``spill``: where
+    each refined depth and confidence go (e.g. :meth:`SpillStore.put`); spilled images are read by
+    file for each job (:func:`loaded`), so that no keyframe's image stays in memory.
     """
     by_stamp = {k.stamp: k for k in keyframes}
     scheduler = RefineScheduler(cfg.schedule)
@@ -49,6 +63,7 @@ def refine_all(
     failures: dict[int, str] = {}
     warnings: list[str] = []
     attempts = 0
+    refined: set[int] = set()
     if progress is not None:
         progress('keyframes', 0, len(keyframes))
     while True:
@@ -63,7 +78,9 @@ def refine_all(
             break
         attempts += 1
         kf = by_stamp[job.stamp]
-        result = refine_job(refiner, job, cfg.schedule.mvs, photometric)
+        views = (_loaded(job.view), tuple(_loaded(v) for v in job.neighbour_views))
+        job_in_memory = replace(job, view=views[0], neighbour_views=views[1])
+        result = refine_job(refiner, job_in_memory, cfg.schedule.mvs, photometric)
         kf.timings_s = dict(result.timings_s)
         if result.refined is None:
             scheduler.failed(job)
@@ -71,16 +88,19 @@ def refine_all(
             LOG.warning('keyframe %d ns not refined: %s', job.stamp, failures[job.stamp])
             continue
         scheduler.done(job)
+        refined.add(job.stamp)
         failures.pop(job.stamp, None)
-        kf.depth = result.refined.depth
-        kf.confidence = result.refined.confidence
+        keep = spill or (lambda a: a)
+        kf.depth = keep(result.refined.depth)
+        conf = result.refined.confidence
+        kf.confidence = None if conf is None else keep(conf)
         kf.neighbours = job.neighbours
         LOG.info(
             'refined keyframe %d/%d (%d ns) with %d neighbours in %.2f s',
-            len(scheduler.refined()), len(keyframes), job.stamp, len(job.neighbours), result.seconds,
+            len(refined), len(keyframes), job.stamp, len(job.neighbours), result.seconds,
         )  # fmt: skip
         if progress is not None:
-            progress('keyframes', len(scheduler.refined()), len(keyframes))
+            progress('keyframes', len(refined), len(keyframes))
     for s in scheduler.unrefined():
         failures.setdefault(s, 'no neighbour with enough overlap and parallax')
     return {

@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -15,6 +15,7 @@ from ibr_ros.core.render import NovelViewRenderer, ReplyStatus, SourceView, outp
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
+from ibr_ros.jobs.process.spill import remapped
 
 
 @dataclass
@@ -44,9 +45,11 @@ def render_all(
     model_frame = model[0].pose_frame
     renderer = NovelViewRenderer([], cfg.viewing.render)
     t0 = time.perf_counter()
-    for k in model:
+    for n_done, k in enumerate(model, 1):
         if k.pose_frame != model_frame:
             unusable[str(k.stamp)] = f'frame {k.pose_frame!r}, the model is in {model_frame!r}'
+            if progress is not None:
+                progress('model', n_done, len(model))
             continue
         i = renderer.add_view(
             SourceView(
@@ -60,8 +63,15 @@ def render_all(
             )
         )
         renderer.prepare([i])
+        # Spilled arrays: fresh mappings for the keyframe and the renderer's view (same values), so
+        # that the pages the preparation read are not kept resident for every keyframe.
+        k.rgb = remapped(k.rgb)
+        k.depth, k.confidence = (None if a is None else remapped(a) for a in (k.depth, k.confidence))
+        renderer.views[i] = replace(renderer.views[i], rgb=k.rgb, depth=k.depth, confidence=k.confidence)
         if (why := renderer.skip_reason(i)) is not None:
             unusable[str(k.stamp)] = why
+        if progress is not None:
+            progress('model', n_done, len(model))
     info['prepare_s'] = time.perf_counter() - t0
     camera = output_camera(cfg.viewing.width, cfg.viewing.height, cfg.viewing.hfov_deg, model[-1].camera)
     poses = interpolate_path([k.t_wc for k in model], n_views)

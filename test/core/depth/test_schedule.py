@@ -9,12 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, select_neighbours
 from ibr_ros.core.depth.schedule import (
+    NeighbourIndex,
     RefineScheduler,
     ScheduleConfig,
     axis_scene_depth,
     parse_depth_range,
+    probe_points,
     shard_of,
 )
 from ibr_ros.core.geometry.camera import PinholeCamera
@@ -206,3 +208,92 @@ def test_sparse_points_give_each_keyframe_its_depth_range_and_bound_its_depth():
     assert s.depth_range(T0) == (10.0, 40000.0)
     with pytest.raises(ValueError, match=r'points_w must be Px3, got shape \(4,\)'):
         s.set_points(np.zeros(4))
+
+
+# --------------------------------------------------------------------------- long flights: prefilter
+
+
+def _reference_range(poses: list[np.ndarray], i: int, cfg: ScheduleConfig) -> tuple[float, float]:
+    """The depth range rule over the whole flight, as before the prefilter (scene depth from the
+    optical axes of all others, else 12.5 x the mean distance to the two nearest keyframes)."""
+    others = poses[:i] + poses[i + 1 :]
+    s = axis_scene_depth(poses[i], others)
+    if s is None:
+        d = sorted(float(np.linalg.norm(o[:3, 3] - poses[i][:3, 3])) for o in others)[:2]
+        s = 12.5 * max(float(np.mean(d)), 0.1)
+    return s * cfg.near_ratio, s * cfg.far_ratio
+
+
+@pytest.mark.parametrize('kind', ['lawnmower', 'orbit', 'forward'])
+def test_prefiltered_neighbours_and_ranges_match_the_search_over_the_whole_flight(kind):
+    """Offline (all keyframes known): every job's neighbours and depth range are those of
+    select_neighbours over all keyframes and of the range rule over all keyframes."""
+    from ibr_ros.core.synth.trajectory import make_trajectory
+
+    cam = PinholeCamera.from_fov(640, 360, 70.0)
+    poses = [t.t_wc for t in make_trajectory(kind, duration_s=40.0, fps=2.0, seed=3)][:60]
+    s = sched()
+    for k, t in enumerate(poses):
+        s.add(T0 + k, MvsView(RGB, cam, t))
+    jobs = 0
+    while (job := s.next_job(flush=True)) is not None:
+        i = job.stamp - T0
+        assert job.depth_range == _reference_range(poses, i, s.config)
+        picks = select_neighbours(
+            i, np.array(poses), cam, depth_range=job.depth_range, **s.config.mvs.neighbour_options()
+        )
+        assert job.neighbours == tuple(T0 + j for j in picks)
+        s.done(job)
+        jobs += 1
+    assert jobs >= 50
+
+
+def test_neighbour_index_keeps_every_possible_neighbour():
+    """Random cameras around a scene: each keyframe's picks among all views lie in its candidates."""
+    rng = np.random.default_rng(7)
+    cam = PinholeCamera.from_fov(320, 240, 60.0)
+    poses = [
+        look_at(rng.uniform(-80, 80, 3) + np.array([0, 0, 60]), rng.uniform(-20, 20, 3) * [1, 1, 0])
+        for _ in range(40)
+    ]
+    index = NeighbourIndex([MvsView(RGB, cam, t) for t in poses])
+    opts = MvsOptions().neighbour_options()
+    for i in range(len(poses)):
+        probes = probe_points(cam, poses[i], 60.0)
+        cands = set(index.candidates(i, probes, max_view_angle_deg=60.0, min_overlap=0.3).tolist())
+        picks = select_neighbours(i, np.array(poses), cam, depth_range=(15.0, 240.0), **opts)
+        assert set(picks) <= cands
+        assert i not in cands
+
+
+def test_neighbours_are_cached_until_a_keyframe_lands_nearby(monkeypatch):
+    import ibr_ros.core.depth.schedule as schedule
+
+    calls = []
+    real = schedule.select_neighbours
+    monkeypatch.setattr(schedule, 'select_neighbours', lambda *a, **kw: calls.append(a[0]) or real(*a, **kw))
+    s = sched(min_neighbours=3, scene_depth_m=50.0)  # a fixed range: only arrivals matter
+    for k in range(3):
+        s.add(T0 + k, nadir_view(4.0 * k))
+    assert s.next_job() is None  # two neighbours each, three needed
+    assert len(calls) == 3
+    assert s.next_job() is None
+    assert len(calls) == 3  # nothing new: cached
+    s.add(T0 + 3, nadir_view(5000.0))  # far away: no keyframe can see its scene
+    assert s.next_job() is None
+    assert len(calls) == 4  # only the new keyframe's own search
+    s.add(T0 + 4, nadir_view(6.0))  # in the middle of the others: all searched again
+    job = s.next_job()
+    assert len(calls) == 5
+    assert job.stamp == T0
+    assert len(job.neighbours) == 3
+
+
+def test_invalid_pose_is_refused_by_next_job():
+    s = sched(min_neighbours=1)
+    s.add(T0, orbit_view(0))
+    bad = orbit_view(6).t_wc.copy()
+    bad[:3, :3] *= 2.0
+    s.add(T0 + 1, MvsView(RGB, CAM, bad))
+    with pytest.raises(ValueError, match=f'keyframe {T0 + 1} ns t_wc rotation is not orthonormal'):
+        s.next_job()
