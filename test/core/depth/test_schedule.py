@@ -240,7 +240,7 @@ def test_prefiltered_neighbours_and_ranges_match_the_search_over_the_whole_fligh
         i = job.stamp - T0
         assert job.depth_range == _reference_range(poses, i, s.config)
         picks = select_neighbours(
-            i, np.array(poses), cam, depth_range=job.depth_range, **s.config.mvs.neighbour_options()
+            i, np.array(poses), cam, depth_range=job.probe_range, **s.config.mvs.neighbour_options()
         )
         assert job.neighbours == tuple(T0 + j for j in picks)
         s.done(job)
