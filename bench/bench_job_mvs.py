@@ -9,7 +9,8 @@ neighbours, the sweep range from the scene depth) and each job's depth comes fro
 
 * baseline (in the same process, run first): no cache, so every job sweeps its reference and all
   of its neighbours (what ``refine_job`` did through ``compute_depth_maps``);
-* cached: one :class:`~ibr_ros.core.depth.job_mvs.PhotometricCache` for the flight.
+* cached: one :class:`~ibr_ros.core.depth.job_mvs.PhotometricCache` for the flight (the
+  depth_refiner's ``reuse_neighbour_depth``).
 
 Prints sweeps and seconds per keyframe for both, the ratio, and how the two depth maps of each
 keyframe compare against the bag's ground truth (fraction of pixels within 5 %, completeness).
@@ -90,7 +91,7 @@ def main() -> int:
     run(views[:3], None)  # compile / load the kernels
     n = len(views)
     base, t_base, s_base = run(views, None)
-    cached, t_cached, s_cached = run(views, PhotometricCache())
+    cached, t_cached, s_cached = run(views, PhotometricCache.for_flight(True))
     acc_b, comp_b = accuracy(base, truths)
     acc_c, comp_c = accuracy(cached, truths)
     w, h = views[0].camera.width, views[0].camera.height

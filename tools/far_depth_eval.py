@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -50,15 +51,19 @@ HILL = 6  # ibr_ros.core.synth.LABEL_NAMES.index('hill')
 FAR_REGION_RATIO = 4.0
 
 
-def scheduled_mvs(views: list[MvsView], far_ratio: float | None = None) -> tuple[list[np.ndarray], float]:
+def scheduled_mvs(
+    views: list[MvsView], far_ratio: float | None = None, reuse: bool = False
+) -> tuple[list[np.ndarray], float]:
     """MVS depth of every view as the depth_refiner and ``ibr process`` compute it (no sparse
-    points): :class:`RefineScheduler` ranges and neighbours, :func:`job_depth` with a cache; and the
-    median scene depth (m) the ranges came from."""
-    cfg = ScheduleConfig() if far_ratio is None else ScheduleConfig(far_ratio=far_ratio)
+    points): :class:`RefineScheduler` ranges and neighbours, :func:`job_depth` (``reuse``: with the
+    ``reuse_neighbour_depth`` cache); and the median scene depth (m) the ranges came from."""
+    cfg = ScheduleConfig(reuse_neighbour_depth=reuse)
+    if far_ratio is not None:
+        cfg = replace(cfg, far_ratio=far_ratio)
     scheduler = RefineScheduler(cfg)
     for i, v in enumerate(views):
         scheduler.add(i, v)
-    cache = PhotometricCache()
+    cache = PhotometricCache.for_flight(cfg.reuse_neighbour_depth)
     out = [np.zeros((v.camera.height, v.camera.width), np.float32) for v in views]
     scene = []
     while (job := scheduler.next_job(flush=True)) is not None:
@@ -132,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         '--far-ratio', type=float, help="far end of the sweep x the scene depth (default: the schedule's)"
     )
+    p.add_argument('--reuse-neighbour-depth', action='store_true', help='the depth_refiner parameter')
     a = p.parse_args(argv)
     print(
         '| bag | mono | beyond level: share, Abs Rel | beyond depth: share (hills), Abs Rel (hills / other) '
@@ -146,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         if cache is not None and cache.is_file():
             d_mvs, scene = list(np.load(cache)['depth']), float(np.load(cache)['scene'])
         else:
-            d_mvs, scene = scheduled_mvs(views, a.far_ratio)
+            d_mvs, scene = scheduled_mvs(views, a.far_ratio, a.reuse_neighbour_depth)
             if cache is not None:
                 cache.parent.mkdir(parents=True, exist_ok=True)
                 np.savez_compressed(cache, depth=np.stack(d_mvs), scene=scene)

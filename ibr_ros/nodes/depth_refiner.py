@@ -78,7 +78,7 @@ class DepthRefinerNode(Node):
         self.mirror = cfg.mirror_model
         self.max_pending = cfg.max_pending
         self.schedule = RefineScheduler(cfg.schedule)
-        self.photometric = PhotometricCache()  # keyframes' photometric MVS depth, reused by later jobs
+        self.photometric = PhotometricCache.for_flight(cfg.schedule.reuse_neighbour_depth)
         self.trigger = SfmTrigger(cfg.sfm)
         self.sfm = SfmSession(scale_hint=cfg.sfm.scale, max_side=cfg.sfm.max_side, redefine=False)
         self.unit = 'm'  # of poses and depth: 'sfm units' in an SfM frame without a scale

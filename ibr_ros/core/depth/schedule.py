@@ -100,12 +100,16 @@ class ScheduleConfig:
     ``mvs``: the MVS options the keyframes are refined with (held here only); its neighbour settings
     (:meth:`~ibr_ros.core.depth.mvs.MvsOptions.neighbour_options`) choose the neighbours.
     ``depth_range``: (near, far) in metres or None (automatic); ``scene_depth_m``: 0 = estimate.
+    ``reuse_neighbour_depth``: the caller keeps a filled
+    :class:`~ibr_ros.core.depth.job_mvs.PhotometricCache` for the flight
+    (:meth:`~ibr_ros.core.depth.job_mvs.PhotometricCache.for_flight`).
     """
 
     num_workers: int = 1
     worker_index: int = 0
     min_neighbours: int = 2
     refine_again: bool = False
+    reuse_neighbour_depth: bool = False
     depth_range: tuple[float, float] | None = None
     scene_depth_m: float = 0.0
     near_ratio: float = 0.25

@@ -59,7 +59,7 @@ def refine_all(
         refiner = DepthRefiner(cfg.refiner)  # loads the ONNX models of mono/sky 'onnx'
     except MonoModelError as exc:
         raise UserError(f'depth_refiner mono_model/sky_model: {exc}') from exc
-    photometric = PhotometricCache()  # each keyframe swept about twice, not once per job it is in
+    photometric = PhotometricCache.for_flight(cfg.schedule.reuse_neighbour_depth)
     failures: dict[int, str] = {}
     warnings: list[str] = []
     attempts = 0

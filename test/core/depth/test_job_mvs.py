@@ -98,3 +98,8 @@ def test_it_needs_a_neighbour_and_one_stamp_per_view():
         job_depth(views, [1, 2], RANGE, OPTIONS)
     with pytest.raises(ValueError, match='at least one neighbour'):
         job_depth(views[:1], [1], RANGE, OPTIONS)
+
+
+def test_a_flight_reuses_neighbour_depth_only_when_asked():
+    assert PhotometricCache.for_flight(False).capacity == 0  # the default: each job sweeps its own
+    assert PhotometricCache.for_flight(True).capacity == job_mvs.FLIGHT_CAPACITY
