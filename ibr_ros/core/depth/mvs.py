@@ -65,6 +65,7 @@ from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import validate_pose
 
 __all__ = [
+    'PROBE_GRID',
     'REASON_NO_DEPTH_RANGE',
     'REASON_NO_OVERLAP',
     'REASON_NO_PARALLAX',
@@ -73,10 +74,12 @@ __all__ = [
     'MvsOptions',
     'MvsResult',
     'MvsView',
+    'check_camera',
     'compute_depth_maps',
     'depth_range_from_points',
     'geometric_filter',
     'mvs_depth',
+    'probe_points',
     'select_neighbours',
 ]
 
@@ -89,6 +92,9 @@ REASON_NO_PARALLAX = 'no_parallax'
 REASON_NO_DEPTH_RANGE = 'no_depth_range'
 
 _STRIP_ROWS = 32  # rows per parallel work item of _sweep
+
+#: Pixel lattice (per side) of :func:`select_neighbours`' probe points without sparse points.
+PROBE_GRID = 9
 
 
 class MvsBackendUnavailable(RuntimeError):  # noqa: N818 (the name the callers use)
@@ -523,7 +529,8 @@ def _grey(name: str, img: ArrayLike, cam: PinholeCamera) -> NDArray[np.float32]:
     return np.ascontiguousarray(g.reshape(cam.height, cam.width))
 
 
-def _check_camera(name: str, cam: object) -> PinholeCamera:
+def check_camera(name: str, cam: object) -> PinholeCamera:
+    """``cam`` if it is an undistorted :class:`PinholeCamera`; else ValueError naming ``name``."""
     if not isinstance(cam, PinholeCamera):
         raise ValueError(f'{name} must be a PinholeCamera, got {type(cam).__name__}')
     if cam.is_distorted:
@@ -536,7 +543,7 @@ def _cameras(name: str, cams: PinholeCamera | Sequence[PinholeCamera], n: int) -
     seq = [cams] * n if isinstance(cams, PinholeCamera) else list(cams)
     if len(seq) != n:
         raise ValueError(f'{name} has {len(seq)} cameras for {n} views')
-    return [_check_camera(f'{name}[{i}]', c) for i, c in enumerate(seq)]
+    return [check_camera(f'{name}[{i}]', c) for i, c in enumerate(seq)]
 
 
 def _poses(name: str, poses: ArrayLike, n: int | None = None) -> NDArray[np.float64]:
@@ -576,8 +583,12 @@ def _points(points_w: ArrayLike) -> NDArray[np.float64]:
     return pts[np.all(np.isfinite(pts), axis=1)]
 
 
-def _grid_points(camera: PinholeCamera, t_wc: NDArray[np.float64], depth: float, grid: int) -> NDArray:
-    """World points of a ``grid`` x ``grid`` pixel lattice of the view at z-depth ``depth``."""
+def probe_points(
+    camera: PinholeCamera, t_wc: NDArray[np.float64], depth: float, grid: int = PROBE_GRID
+) -> NDArray[np.float64]:
+    """World points (Mx3 m) of a ``grid`` x ``grid`` pixel lattice of the view at z-depth ``depth``
+    (m); with the default :data:`PROBE_GRID`, the scene :func:`select_neighbours` probes given a
+    depth range."""
     us = np.linspace(0, camera.width - 1, grid)
     vs = np.linspace(0, camera.height - 1, grid)
     uv = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2)
@@ -841,7 +852,7 @@ def select_neighbours(
     if probes is None:
         if depth_range is None:
             raise ValueError('select_neighbours needs depth_range or points_w with 10 or more points in view')
-        probes = _grid_points(cams[ref_index], t_ref, math.sqrt(depth_range[0] * depth_range[1]), 9)
+        probes = probe_points(cams[ref_index], t_ref, math.sqrt(depth_range[0] * depth_range[1]))
     centroid = probes.mean(axis=0)
     cands: list[tuple[float, int]] = []
     for j in range(n):
@@ -901,7 +912,7 @@ def mvs_depth(
     ``reason`` (``REASON_*``); bad arguments raise ValueError naming them.
     """
     o = options or MvsOptions()
-    ref_cam = _check_camera('ref_cam', ref_cam)
+    ref_cam = check_camera('ref_cam', ref_cam)
     ref = _grey('ref_rgb', ref_rgb, ref_cam)
     t_wr = validate_pose(ref_pose, field='ref_pose')
     if isinstance(src_rgbs, np.ndarray) and src_rgbs.ndim < 3:
@@ -930,7 +941,7 @@ def mvs_depth(
         r = _colmap_depth_maps(views, [list(range(1, n + 1))], (near, far), o)[0]
         return replace(r, depth=r.photometric_depth, n_consistent=np.zeros(ref.shape, np.uint8))
     # Sources that see some of the reference frustum between near and far.
-    probes = np.concatenate([_grid_points(ref_cam, t_wr, d, 7) for d in (near, math.sqrt(near * far), far)])
+    probes = np.concatenate([probe_points(ref_cam, t_wr, d, 7) for d in (near, math.sqrt(near * far), far)])
     keep = [i for i in range(n) if _in_view(probes, cams[i], t_ws[i])[0].any()]
     if not keep:
         return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
@@ -1024,7 +1035,7 @@ def compute_depth_maps(
     if depth_range is None and points_w is None:
         raise ValueError('compute_depth_maps needs depth_range or points_w')
     points = np.empty((0, 3)) if points_w is None else points_w  # read only without a depth_range
-    cams = [_check_camera(f'views[{i}].camera', v.camera) for i, v in enumerate(views)]
+    cams = [check_camera(f'views[{i}].camera', v.camera) for i, v in enumerate(views)]
     poses = _poses(
         'views[].t_wc', np.stack([np.asarray(v.t_wc, dtype=np.float64).reshape(4, 4) for v in views])
     )

@@ -42,20 +42,24 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView, depth_range_from_points, select_neighbours
+from ibr_ros.core.depth.mvs import (
+    MvsOptions,
+    MvsView,
+    check_camera,
+    depth_range_from_points,
+    probe_points,
+    select_neighbours,
+)
 from ibr_ros.core.flight.status import shard_of
-from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import validate_pose
 
 __all__ = [
-    'PROBE_GRID',
     'NeighbourIndex',
     'RefineJob',
     'RefineScheduler',
     'ScheduleConfig',
     'axis_scene_depth',
     'parse_depth_range',
-    'probe_points',
 ]
 
 
@@ -181,18 +185,6 @@ class RefineJob:
 #: :func:`~ibr_ros.core.depth.mvs.select_neighbours` keeps: degrees on the axis angle, pixels on the
 #: image bounds, radians on the viewing cone.
 _SLACK_DEG, _SLACK_PX, _SLACK_RAD = 1e-6, 1e-3, 1e-6
-
-#: Pixel lattice (per side) of ``select_neighbours``' probe points without sparse points.
-PROBE_GRID = 9
-
-
-def probe_points(camera: PinholeCamera, t_wc: NDArray[np.float64], depth: float) -> NDArray[np.float64]:
-    """World points (Mx3 m) of the :data:`PROBE_GRID` pixel lattice of a view at z-depth ``depth``
-    (m): the scene :func:`~ibr_ros.core.depth.mvs.select_neighbours` probes given a depth range."""
-    us = np.linspace(0, camera.width - 1, PROBE_GRID)
-    vs = np.linspace(0, camera.height - 1, PROBE_GRID)
-    uv = np.stack(np.meshgrid(us, vs), -1).reshape(-1, 2)
-    return camera.backproject(uv, np.full(len(uv), depth)) @ t_wc[:3, :3].T + t_wc[:3, 3]
 
 
 class NeighbourIndex:
@@ -402,16 +394,7 @@ class RefineScheduler:
             if kf.checked:
                 continue
             validate_pose(kf.view.t_wc, field=f'keyframe {kf.stamp} ns t_wc')
-            cam = kf.view.camera
-            if not isinstance(cam, PinholeCamera):
-                raise ValueError(
-                    f'keyframe {kf.stamp} ns camera must be a PinholeCamera, got {type(cam).__name__}'
-                )
-            if cam.is_distorted:
-                raise ValueError(
-                    f'keyframe {kf.stamp} ns camera has distortion {cam.d.tolist()}: '
-                    'undistort the images first'
-                )
+            check_camera(f'keyframe {kf.stamp} ns camera', kf.view.camera)
             kf.checked = True
 
     def _range(self, kf: _Keyframe) -> tuple[tuple[float, float], bool, tuple[float, float]]:
@@ -438,12 +421,7 @@ class RefineScheduler:
                 return rng, True, rng, False
         if cfg.scene_depth_m:
             s = cfg.scene_depth_m
-            return (
-                (s * cfg.near_ratio, s * cfg.far_ratio),
-                False,
-                (s * cfg.near_ratio, s / cfg.near_ratio),
-                False,
-            )
+            return (s * cfg.near_ratio, s * cfg.far_ratio), False, self._probe(s), False
         index = self._indexed()
         i = self._pos[kf.stamp]
         # axis_scene_depth over the keyframes whose axes can converge with this one (3-90 deg

@@ -9,14 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from ibr_ros.core.depth.mvs import MvsOptions, MvsView, select_neighbours
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, probe_points, select_neighbours
 from ibr_ros.core.depth.schedule import (
     NeighbourIndex,
     RefineScheduler,
     ScheduleConfig,
     axis_scene_depth,
     parse_depth_range,
-    probe_points,
     shard_of,
 )
 from ibr_ros.core.geometry.camera import PinholeCamera
