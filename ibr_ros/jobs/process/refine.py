@@ -60,6 +60,7 @@ def refine_all(
     except MonoModelError as exc:
         raise UserError(f'depth_refiner mono_model/sky_model: {exc}') from exc
     photometric = PhotometricCache.for_flight(cfg.schedule.reuse_neighbour_depth)
+    keep = spill or (lambda a: a)
     failures: dict[int, str] = {}
     warnings: list[str] = []
     attempts = 0
@@ -90,7 +91,6 @@ def refine_all(
         scheduler.done(job)
         refined.add(job.stamp)
         failures.pop(job.stamp, None)
-        keep = spill or (lambda a: a)
         kf.depth = keep(result.refined.depth)
         conf = result.refined.confidence
         kf.confidence = None if conf is None else keep(conf)
