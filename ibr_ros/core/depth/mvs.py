@@ -555,8 +555,13 @@ def _poses(name: str, poses: ArrayLike, n: int | None = None) -> NDArray[np.floa
         raise ValueError(f'{name} must be Nx4x4 camera-to-world matrices, got shape {arr.shape}')
     if n is not None and len(arr) != n:
         raise ValueError(f'{name} has {len(arr)} poses for {n} views')
-    for i, p in enumerate(arr):
-        validate_pose(p, field=f'{name}[{i}]')
+    r = arr[:, :3, :3]
+    with np.errstate(invalid='ignore'):
+        err = np.abs(np.matmul(np.swapaxes(r, 1, 2), r) - np.eye(3)).max(axis=(1, 2), initial=0.0)
+        ok = np.isfinite(arr).all(axis=(1, 2)) & (err <= 1e-4) & (np.abs(np.linalg.det(r) - 1.0) <= 1e-4)
+        ok &= np.isclose(arr[:, 3], [0, 0, 0, 1]).all(axis=1)
+    for i in np.flatnonzero(~ok):  # validate_pose raises naming the first bad pose
+        validate_pose(arr[i], field=f'{name}[{i}]')
     return arr
 
 
@@ -574,6 +579,34 @@ def _in_view(points_w: NDArray[np.float64], camera: PinholeCamera, t_wc: NDArray
         ok = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= camera.width - 0.5)
         ok &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= camera.height - 0.5)
     return ok, z
+
+
+def _in_views(
+    points_w: NDArray[np.float64], cameras: Sequence[PinholeCamera], t_wcs: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """(views, points) mask of :func:`_in_view` for several views at once."""
+    if not cameras:
+        return np.zeros((0, len(points_w)), bool)
+    pc = np.matmul(points_w[None] - t_wcs[:, None, :3, 3], t_wcs[:, :3, :3])
+    k = np.array([(c.fx, c.fy, c.cx, c.cy, c.width, c.height) for c in cameras])[:, :, None]
+    z = pc[..., 2]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        u = pc[..., 0] / z * k[:, 0] + k[:, 2]
+        v = pc[..., 1] / z * k[:, 1] + k[:, 3]
+        ok = (z > 0) & (u >= -0.5) & (u <= k[:, 4] - 0.5) & (v >= -0.5) & (v <= k[:, 5] - 0.5)
+    return np.asarray(ok, dtype=bool)
+
+
+def _masked_median(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Median of each row of ``values`` over its ``mask``-ed entries (NaN for an empty row)."""
+    if values.shape[0] == 0:
+        return np.zeros(0)
+    srt = np.sort(np.where(mask, values, np.inf), axis=1)
+    n = mask.sum(axis=1)
+    rows = np.arange(len(n))
+    lo = srt[rows, np.maximum((n - 1) // 2, 0)]
+    hi = srt[rows, np.maximum(n // 2, 0)]
+    return np.where(n > 0, np.where(n % 2 == 1, lo, (lo + hi) / 2), np.nan)
 
 
 def _points(points_w: ArrayLike) -> NDArray[np.float64]:
@@ -854,40 +887,40 @@ def select_neighbours(
             raise ValueError('select_neighbours needs depth_range or points_w with 10 or more points in view')
         probes = probe_points(cams[ref_index], t_ref, math.sqrt(depth_range[0] * depth_range[1]))
     centroid = probes.mean(axis=0)
-    cands: list[tuple[float, int]] = []
-    for j in range(n):
-        t_j = t_all[j]
-        view_angle = float(_angle_deg(t_ref[:3, 2], t_j[:3, 2]))
-        if j == ref_index or view_angle > max_view_angle_deg:
-            continue
-        vis, _ = _in_view(probes, cams[j], t_j)
-        overlap = float(vis.mean())
-        if overlap < min_overlap or not vis.any():
-            continue
-        ang = float(np.median(_angle_deg(t_ref[:3, 3] - probes[vis], t_j[:3, 3] - probes[vis])))
-        if min_angle_deg <= ang <= max_angle_deg:
-            s = overlap * math.exp(-0.5 * ((ang - target_angle_deg) / target_angle_deg) ** 2)
-            if view_angle_scale_deg > 0:
-                s *= math.exp(-0.5 * (view_angle / view_angle_scale_deg) ** 2)
-            cands.append((s, j))
+    # Candidates, all views at once: viewing direction, overlap, median triangulation angle.
+    view_angle = _angle_deg(t_ref[:3, 2], t_all[:, :3, 2])
+    js = np.flatnonzero(view_angle <= max_view_angle_deg)
+    js = js[js != ref_index]
+    vis = _in_views(probes, [cams[j] for j in js], t_all[js])
+    overlap = vis.mean(axis=1)
+    keep = (overlap >= min_overlap) & vis.any(axis=1)
+    js, vis, overlap = js[keep], vis[keep], overlap[keep]
+    tri = _angle_deg(t_ref[:3, 3] - probes, t_all[js, None, :3, 3] - probes)  # (candidates, probes)
+    ang = _masked_median(tri, vis)
+    keep = (min_angle_deg <= ang) & (ang <= max_angle_deg)
+    js, overlap, ang = js[keep], overlap[keep], ang[keep]
+    score = np.array([
+        o * math.exp(-0.5 * ((a - target_angle_deg) / target_angle_deg) ** 2)
+        * (math.exp(-0.5 * (float(v) / view_angle_scale_deg) ** 2) if view_angle_scale_deg > 0 else 1.0)
+        for o, a, v in zip(overlap.tolist(), ang.tolist(), view_angle[js].tolist())
+    ])  # fmt: skip
     # Sides: unit baseline directions in the reference image plane (camera x right, y down).
-    side = {}
-    for _, j in cands:
-        b = ((t_all[j][:3, 3] - t_ref[:3, 3]) @ t_ref[:3, :3])[:2]
-        norm = float(np.linalg.norm(b))
-        side[j] = b / norm if norm > 1e-9 else np.zeros(2)
+    side = ((t_all[js, :3, 3] - t_ref[:3, 3]) @ t_ref[:3, :3])[:, :2]
+    norm = np.linalg.norm(side, axis=1)
+    side = np.where(norm[:, None] > 1e-9, side / np.maximum(norm, 1e-300)[:, None], 0.0)
+    # Greedy picks: each pick scales the others by their baseline angle to it and their side.
+    rays = t_all[js, :3, 3] - centroid
+    open_ = np.ones(len(js), bool)
+    closest = np.full(len(js), -np.inf)  # largest side cosine to a pick so far
     picked: list[int] = []
-    while cands and len(picked) < max_neighbours:
-        scores = []
-        for s, j in cands:
-            for k in picked:
-                a = float(_angle_deg(t_all[j][:3, 3] - centroid, t_all[k][:3, 3] - centroid))
-                s *= min(1.0, a / max(min_angle_deg, 1e-6))
-            if picked:
-                c = max(float(side[j] @ side[k]) for k in picked)
-                s *= 1.0 - side_spread * (1.0 + c) / 2.0
-            scores.append(s)
-        picked.append(cands.pop(int(np.argmax(scores)))[1])
+    while open_.any() and len(picked) < max_neighbours:
+        scores = score if not picked else score * (1.0 - side_spread * (1.0 + closest) / 2.0)
+        best = int(np.flatnonzero(open_)[np.argmax(scores[open_])])
+        picked.append(int(js[best]))
+        open_[best] = False
+        a = _angle_deg(rays, rays[best])
+        score = score * np.minimum(1.0, a / max(min_angle_deg, 1e-6))
+        closest = np.maximum(closest, side[:, 0] * side[best, 0] + side[:, 1] * side[best, 1])
     return picked
 
 

@@ -63,25 +63,24 @@ __all__ = [
 ]
 
 
-def axis_scene_depth(t_wc: np.ndarray, others: Sequence[np.ndarray]) -> float | None:
+def axis_scene_depth(t_wc: np.ndarray, others: Sequence[np.ndarray] | np.ndarray) -> float | None:
     """Median distance (m) along the optical axis of ``t_wc`` to its closest approach to the other axes.
 
     Only axes 3-90 deg apart whose closest points lie in front of both cameras count; None when
-    there is none (parallel axes).
+    there is none (parallel axes). ``others``: 4x4 camera-to-world poses (a sequence or an Nx4x4 array).
     """
-    c0, a0 = t_wc[:3, 3], t_wc[:3, 2]
-    dists = []
-    for t in others:
-        c1, a1 = t[:3, 3], t[:3, 2]
-        b = float(a0 @ a1)
-        if not math.cos(math.radians(90.0)) <= b <= math.cos(math.radians(3.0)):
-            continue
-        w = c0 - c1
-        d, e = float(a0 @ w), float(a1 @ w)
-        s, u = (b * e - d) / (1 - b * b), (e - b * d) / (1 - b * b)
-        if s > 0 and u > 0:
-            dists.append(s)
-    return float(np.median(dists)) if dists else None
+    poses = np.asarray(others, dtype=np.float64).reshape(-1, 4, 4)
+    c0, a0 = np.asarray(t_wc, dtype=np.float64)[:3, 3], np.asarray(t_wc, dtype=np.float64)[:3, 2]
+    c1, a1 = poses[:, :3, 3], poses[:, :3, 2]
+    b = a1 @ a0
+    ok = (b >= math.cos(math.radians(90.0))) & (b <= math.cos(math.radians(3.0)))
+    w = c0 - c1[ok]
+    b, a1 = b[ok], a1[ok]
+    d, e = w @ a0, np.einsum('ij,ij->i', a1, w)
+    den = 1 - b * b
+    s, u = (b * e - d) / den, (e - b * d) / den
+    dists = s[(s > 0) & (u > 0)]
+    return float(np.median(dists)) if dists.size else None
 
 
 def parse_depth_range(values: Sequence[float], name: str = 'depth_range') -> tuple[float, float] | None:
@@ -429,7 +428,7 @@ class RefineScheduler:
         b = index.axes @ index.axes[i]
         near = (b >= math.cos(math.radians(90.0)) - 1e-9) & (b <= math.cos(math.radians(3.0)) + 1e-9)
         near[i] = False
-        axis = axis_scene_depth(index.poses[i], list(index.poses[near]))
+        axis = axis_scene_depth(index.poses[i], index.poses[near])
         if axis is not None:
             s = axis
         else:

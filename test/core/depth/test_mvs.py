@@ -301,6 +301,73 @@ def test_select_neighbours_surrounds_the_reference_and_prefers_its_viewing_direc
         MvsOptions(view_angle_scale_deg=-1.0)
 
 
+def _select_neighbours_loop(
+    ref,
+    poses,
+    cam,
+    rng,
+    max_n=4,
+    min_a=2.0,
+    max_a=30.0,
+    target=10.0,
+    min_ov=0.3,
+    max_view=60.0,
+    spread=0.5,
+    scale=30.0,
+):
+    """select_neighbours' rule written as a plain loop per candidate (the test's oracle)."""
+    import math
+
+    def angle(a, b):
+        c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+        return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+    t_ref = poses[ref]
+    probes = mvs.probe_points(cam, t_ref, math.sqrt(rng[0] * rng[1]))
+    centroid = probes.mean(axis=0)
+    cands = []
+    for j, t in enumerate(poses):
+        va = angle(t_ref[:3, 2], t[:3, 2])
+        if j == ref or va > max_view:
+            continue
+        uv, z = cam.project((probes - t[:3, 3]) @ t[:3, :3])
+        with np.errstate(invalid='ignore'):
+            vis = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= cam.width - 0.5)
+            vis &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= cam.height - 0.5)
+        if vis.mean() < min_ov or not vis.any():
+            continue
+        tri = float(np.median([angle(t_ref[:3, 3] - p, t[:3, 3] - p) for p in probes[vis]]))
+        if min_a <= tri <= max_a:
+            s = vis.mean() * math.exp(-0.5 * ((tri - target) / target) ** 2)
+            s *= math.exp(-0.5 * (va / scale) ** 2)
+            b = ((t[:3, 3] - t_ref[:3, 3]) @ t_ref[:3, :3])[:2]
+            cands.append((s, j, b / np.linalg.norm(b) if np.linalg.norm(b) > 1e-9 else np.zeros(2)))
+    picked = []
+    while cands and len(picked) < max_n:
+        scores = []
+        for s, j, side in cands:
+            for k, _ in picked:
+                s *= min(1.0, angle(poses[j][:3, 3] - centroid, poses[k][:3, 3] - centroid) / min_a)
+            if picked:
+                s *= 1.0 - spread * (1.0 + max(float(side @ sk) for _, sk in picked)) / 2.0
+            scores.append(s)
+        _, j, side = cands.pop(int(np.argmax(scores)))
+        picked.append((j, side))
+    return [j for j, _ in picked]
+
+
+@pytest.mark.parametrize('kind', ['lawnmower', 'orbit', 'forward'])
+def test_select_neighbours_matches_the_rule_as_a_loop(kind):
+    """The vectorised selection picks what the per-candidate loop of its docstring picks."""
+    cam = PinholeCamera(width=640, height=360, k=np.array([[500.0, 0, 320], [0, 500.0, 180], [0, 0, 1]]))
+    poses = np.array([s.t_wc for s in make_trajectory(kind, duration_s=40.0, fps=2.0, seed=5)])
+    for ref in range(0, len(poses), 4):
+        for rng in [(10.0, 200.0), (30.0, 60.0)]:
+            assert mvs.select_neighbours(ref, poses, cam, depth_range=rng) == _select_neighbours_loop(
+                ref, poses, cam, rng
+            ), (ref, rng)
+
+
 # --------------------------------------------------------------------------------------------- filter
 
 
