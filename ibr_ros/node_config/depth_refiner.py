@@ -161,7 +161,7 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
         Param(
             'max_neighbours',
             4,
-            'MVS source views per keyframe (2 is ~4x faster on a CPU, less complete)',
+            'MVS source views per keyframe (2: about a third of the MVS work of 4, less complete)',
             (1, 16),
         ),
         Param(
