@@ -177,6 +177,45 @@ def test_depth_refiner_diagnostics(repo):
     _documented('depth_refiner', areas)
 
 
+def test_depth_refiner_diagnostics_of_its_refinements(repo):
+    """3 keyframes refined: the depth count and latency samples are the depth messages that came out."""
+    from ibr_ros.core.flight.status import FlightStatus
+    from ibr_ros.nodes.depth_refiner import DepthRefinerNode
+
+    frames = shipped_frames(repo, (0, 24, 48), (320, 180))
+    params = {'max_neighbours': 2, 'warmup': False, **PERIOD}
+    with in_process(DepthRefinerNode, repo / 'config' / 'depth_refiner.yaml', **params) as h:
+        diag = h.collect(DiagnosticArray, '/diagnostics', DIAG_QOS)
+        depths = h.collect(Image, 'keyframes/depth', LATCHED)
+        pubs = h.publishers(keyframe_topics(LATCHED))
+        status = h.publishers({'status': (DiagnosticStatus, 'keyframes/status', latched_qos())})['status']
+        for f in frames:
+            h.send(pubs['info'], info_msg(f['camera'], f['stamp']))
+            h.send(pubs['pose'], pose_msg(f['pose'], f['stamp']))
+            h.send(pubs['image'], image_msg(f['rgb'], f['stamp']))
+        ended = FlightStatus(pose_source='pose', camera='ended', frames=3, keyframes=3)
+        h.send(status, msg_utils.pairs_to_status('/frame_subsampler', ended.to_pairs()))
+
+        def refined(a: dict[str, AreaStatus]) -> bool:  # the worker marks a job done after its depth went
+            n = str(len(frames))
+            return _counts(a, 'outputs')['depth.count'] == n and _counts(a, 'model')['refined'] == n
+
+        assert h.wait(lambda: _areas(diag, 'depth_refiner', refined) is not None, 300), h.node.bad.counts
+        areas = _areas(diag, 'depth_refiner', refined)
+        assert h.wait(lambda: len(depths) >= len(frames), 30)
+    assert len(depths) == len(frames)
+    out = _counts(areas, 'outputs')
+    assert out['latency.count'] == str(len(frames))
+    assert float(out['latency_ms.max']) >= float(out['latency_ms.median']) > 0
+    assert (out['mirrored.count'], out['sfm_pose.count']) == ('0', '0')
+    model = _counts(areas, 'model')
+    assert (model['keyframes'], model['refined'], model['published']) == ('3', '3', '3')
+    assert _counts(areas, 'queues')['unrefined'] == '0'
+    assert _counts(areas, 'rejected') == {'total': '0'}
+    assert areas['rejected'].level == 'ok'
+    _documented('depth_refiner', areas)
+
+
 def test_view_renderer_diagnostics(repo):
     """4 keyframes, a depth without a known value, a query answered and one with a NaN position."""
     from ibr_ros.nodes.view_renderer import ViewRenderer
@@ -246,8 +285,13 @@ def test_bag_player_diagnostics(ros_env, tmp_path):
         box: list = []
         node.create_subscription(DiagnosticArray, '/diagnostics', box.append, DIAG_QOS)
 
-        def done(a: dict[str, AreaStatus]) -> bool:
-            return _counts(a, 'inputs').get('bag.count') == '7'
+        def done(a: dict[str, AreaStatus]) -> bool:  # the player's thread counts, then publishes
+            last = _counts(a, 'outputs').get('/camera/pose.count') == '5'
+            return (
+                _counts(a, 'inputs').get('bag.count') == '7'
+                and last
+                and a['model'].value('bag_time_s') == '0.400'
+            )
 
         assert spin_until(node, lambda: _areas(box, 'bag_player', done) is not None, 60), log.read_text()
         areas = _areas(box, 'bag_player', done)
@@ -258,7 +302,6 @@ def test_bag_player_diagnostics(ros_env, tmp_path):
         rclpy.try_shutdown()
     assert proc.returncode == 0, log.read_text()
     assert _counts(areas, 'rejected') == {'total': '2', 'corrupt': '2'}
-    assert _counts(areas, 'outputs')['/camera/pose.count'] == '5'
     assert _counts(areas, 'outputs')['latency.count'] == '0'  # rate 0: nothing is due
     assert _counts(areas, 'model') == {'passes': '1', 'bag_time_s': '0.400', 'duration_s': '0.400'}
     assert _counts(areas, 'queues') == {}
