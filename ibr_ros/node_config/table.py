@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-from ibr_ros.core.diagnostics import RATE_WINDOW_S
+from ibr_ros.core.diagnostics import LATENCY_SAMPLES, RATE_WINDOW_S
 from ibr_ros.errors import UserError
 
 __all__ = [
@@ -213,7 +213,7 @@ class Diagnostics:
             '|---|---|---|',
             f'| inputs | `<stream>.count`, `<stream>.rate_hz` of {code(self.inputs)} | OK |',
             f'| outputs | the same of {code(self.outputs)}; `latency.count`, `latency_ms.median`, '
-            f'`latency_ms.p95`, `latency_ms.max` of the last 100: {self.latency} | OK |',
+            f'`latency_ms.p95`, `latency_ms.max` of the last {LATENCY_SAMPLES}: {self.latency} | OK |',
             f'| rejected | `total` and each reason: {described(self.reasons)} | WARN when the total grew '
             'since the last report, ERROR while `incompatible_qos` is counted |',
             f'| queues | `<queue>` (depth) and `<queue>.bound` (0: none) of {described(self.queues)} | WARN '

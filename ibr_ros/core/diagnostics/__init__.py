@@ -8,6 +8,7 @@ from __future__ import annotations
 from ibr_ros.core.diagnostics.tracker import (
     AREAS,
     FATAL_REASONS,
+    LATENCY_SAMPLES,
     RATE_WINDOW_S,
     AreaStatus,
     LatencyStats,
@@ -20,6 +21,7 @@ from ibr_ros.core.diagnostics.tracker import (
 __all__ = [
     'AREAS',
     'FATAL_REASONS',
+    'LATENCY_SAMPLES',
     'RATE_WINDOW_S',
     'AreaStatus',
     'LatencyStats',

@@ -7,7 +7,7 @@ The node feeds events (:meth:`NodeDiagnostics.received`, :meth:`~NodeDiagnostics
 :meth:`~NodeDiagnostics.started` / :meth:`~NodeDiagnostics.finished`) with times in seconds of one
 monotonic clock; :meth:`NodeDiagnostics.report` turns them, with the node's rejection counts, queue
 depths and model size, into one :class:`AreaStatus` per area (:data:`AREAS`) whose level follows the
-rules of :meth:`NodeDiagnostics.report`. ``msg_utils.diagnostics_array`` makes the
+rules of :meth:`NodeDiagnostics.report`. ``msg_utils.areas_to_diagnostics`` makes the
 ``diagnostic_msgs/DiagnosticArray`` of them. Every value is a string (``diagnostic_msgs/KeyValue``);
 rates in Hz, latencies in ms, sizes in bytes.
 """
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 __all__ = [
     'AREAS',
     'FATAL_REASONS',
+    'LATENCY_SAMPLES',
     'RATE_WINDOW_S',
     'AreaStatus',
     'LatencyStats',
@@ -38,6 +39,9 @@ AREAS = ('inputs', 'outputs', 'rejected', 'queues', 'model')
 
 #: Rates are counted over the last this many seconds (or since the start, when that is shorter).
 RATE_WINDOW_S = 10.0
+
+#: Output latencies are summarised over the last this many outputs.
+LATENCY_SAMPLES = 100
 
 #: Rejection reasons that mean no data can flow on an input: level ERROR while counted.
 FATAL_REASONS = ('incompatible_qos',)
@@ -96,7 +100,7 @@ class LatencyTracker:
     is forgotten beyond that (an item that never gets an output, e.g. a frame that is no keyframe).
     """
 
-    def __init__(self, samples: int = 100, max_open: int = 1000) -> None:
+    def __init__(self, samples: int = LATENCY_SAMPLES, max_open: int = 1000) -> None:
         if samples < 1 or max_open < 1:
             raise ValueError(f'samples and max_open must be >= 1, got {samples} and {max_open}')
         self.count = 0
@@ -194,7 +198,7 @@ class NodeDiagnostics:
         *,
         clock: Callable[[], float] = time.monotonic,
         window_s: float = RATE_WINDOW_S,
-        latency_samples: int = 100,
+        latency_samples: int = LATENCY_SAMPLES,
     ) -> None:
         self.clock = clock
         self.start_s = float(clock())
