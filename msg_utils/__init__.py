@@ -51,7 +51,14 @@ from msg_utils.pose import (
     pose_to_matrix,
     transform_stamped_to_matrix,
 )
-from msg_utils.status import diagnostics_to_reply, pairs_to_status, reply_to_diagnostics, status_to_pairs
+from msg_utils.status import (
+    areas_to_diagnostics,
+    diagnostics_to_areas,
+    diagnostics_to_reply,
+    pairs_to_status,
+    reply_to_diagnostics,
+    status_to_pairs,
+)
 
 __all__ = [
     'CONVERSION_ERRORS',
@@ -59,6 +66,7 @@ __all__ = [
     'Flavor',
     'GeoFix',
     'MessageError',
+    'areas_to_diagnostics',
     'camera_image_to_rgb',
     'camera_info_to_pinhole',
     'coerce_header',
@@ -68,6 +76,7 @@ __all__ = [
     'depth_m_to_image',
     'depth_m_to_mm',
     'depth_mm_to_m',
+    'diagnostics_to_areas',
     'diagnostics_to_reply',
     'fix_to_navsatfix',
     'image_to_confidence',

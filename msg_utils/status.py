@@ -1,20 +1,30 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
 """``diagnostic_msgs/DiagnosticStatus`` <-> a name, a level, a message and string key-values;
-``diagnostic_msgs/DiagnosticArray`` <-> the :class:`~ibr_ros.core.render.reply.ReplyStatus` of a query."""
+``diagnostic_msgs/DiagnosticArray`` <-> the :class:`~ibr_ros.core.render.reply.ReplyStatus` of a query,
+and <-> a node's ``/diagnostics`` report (:class:`~ibr_ros.core.diagnostics.AreaStatus` per area)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from ibr_ros.core.diagnostics import AreaStatus
 from msg_utils.errors import MessageError
 from msg_utils.flavor import Flavor, coerce_header, new_message, stamp_to_ns
 
 if TYPE_CHECKING:  # imported where used: ibr_ros.core.render loads the renderer (numba, OpenCV)
     from ibr_ros.core.render.reply import ReplyStatus
 
-__all__ = ['LEVELS', 'diagnostics_to_reply', 'pairs_to_status', 'reply_to_diagnostics', 'status_to_pairs']
+__all__ = [
+    'LEVELS',
+    'areas_to_diagnostics',
+    'diagnostics_to_areas',
+    'diagnostics_to_reply',
+    'pairs_to_status',
+    'reply_to_diagnostics',
+    'status_to_pairs',
+]
 
 #: DiagnosticStatus.level values by name.
 LEVELS = {'ok': 0, 'warn': 1, 'error': 2, 'stale': 3}
@@ -89,3 +99,51 @@ def diagnostics_to_reply(msg: Any) -> tuple[int, ReplyStatus]:
     if level != LEVELS[reply.level]:
         raise MessageError(f'reply status level {level} does not match its result {reply.result!r}')
     return stamp_to_ns(msg.header.stamp), reply
+
+
+def areas_to_diagnostics(
+    areas: Sequence[AreaStatus],
+    header: Any = None,
+    *,
+    node: str,
+    hardware_id: str = '',
+    flavor: Flavor = 'rclpy',
+) -> Any:
+    """A node's ``/diagnostics`` message: a ``DiagnosticArray`` stamped by ``header`` (the report's
+    time) with one ``DiagnosticStatus`` per area, named ``<node>: <area>`` (diagnostic_updater's
+    convention) with ``hardware_id``, the area's level, message and key-values."""
+    return new_message(
+        'diagnostic_msgs/msg/DiagnosticArray',
+        flavor,
+        header=coerce_header(header, flavor),
+        status=[
+            pairs_to_status(
+                f'{node}: {a.area}',
+                a.values,
+                message=a.message,
+                level=a.level,
+                hardware_id=hardware_id,
+                flavor=flavor,
+            )
+            for a in areas
+        ],
+    )
+
+
+def diagnostics_to_areas(msg: Any, node: str) -> dict[str, AreaStatus]:
+    """The areas of ``node`` in a ``DiagnosticArray`` (statuses named ``<node>: <area>``; others are
+    ignored), by area; MessageError for a status of ``node`` with an unknown level."""
+    statuses = getattr(msg, 'status', None)
+    if statuses is None:
+        raise MessageError(f'{type(msg).__name__} is not a DiagnosticArray (no status field)')
+    names = {v: k for k, v in LEVELS.items()}
+    out = {}
+    for st in statuses:
+        prefix, sep, area = str(st.name).partition(': ')
+        if not sep or prefix != node:
+            continue
+        level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+        if level not in names:
+            raise MessageError(f'diagnostics of {node}: {area} has level {level}, not one of 0..3')
+        out[area] = AreaStatus(area, names[level], str(st.message), tuple(status_to_pairs(st)))
+    return out

@@ -8,7 +8,15 @@ from dataclasses import dataclass
 
 from ibr_ros.bag.playback import PlaybackPolicy, parse_remaps, parse_topic_qos
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Topic,
+    Values,
+)
 
 __all__ = ['BAG_PLAYER', 'BagPlayerConfig']
 
@@ -157,6 +165,7 @@ BAG_PLAYER: ParamTable[BagPlayerConfig] = ParamTable(
             _BIG,
         ),
         Param('progress_s', 5.0, 'progress log period in seconds; 0 = off', _BIG),
+        DIAGNOSTICS_PERIOD,
     ),
     build=_build,
     publishes=(
@@ -171,6 +180,22 @@ BAG_PLAYER: ParamTable[BagPlayerConfig] = ParamTable(
             'rosgraph_msgs/Clock',
             "the playback's bag time at `clock_rate_hz`, never ahead of the next message",
             'reliable',
+        ),
+        DIAGNOSTICS_TOPIC,
+    ),
+    diagnostics=Diagnostics(
+        inputs=('bag',),
+        outputs=('<topic>',),
+        latency='at `rate` > 0, how late each message went out after its due time',
+        reasons=(
+            ('empty', 'an empty payload, skipped'),
+            ('encapsulation', 'a payload that is not CDR, skipped'),
+            ('corrupt', 'a payload its type cannot decode, skipped'),
+        ),
+        model=(
+            ('passes', 'passes over the bag started'),
+            ('bag_time_s', 'bag time of the last message published, from the bag start'),
+            ('duration_s', "the bag's duration"),
         ),
     ),
 )

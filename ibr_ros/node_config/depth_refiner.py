@@ -14,7 +14,15 @@ from ibr_ros.core.registration.sfm_session import ScaleHint, ScaleKind
 from ibr_ros.core.registration.trigger import SFM_MODES, SfmConfig, SfmMode
 from ibr_ros.errors import UserError
 from ibr_ros.models import mono_spec, sky_spec
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Topic,
+    Values,
+)
 
 __all__ = ['DEBUG_TOPICS', 'DEPTH_REFINER', 'SFM_MODES', 'SFM_SCALES', 'DepthRefinerConfig']
 
@@ -314,6 +322,7 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
             True,
             'run MVS + refinement on a tiny scene at start-up, so the first keyframe is not slow',
         ),
+        DIAGNOSTICS_PERIOD,
     ),
     build=_build,
     subscribes=(
@@ -402,6 +411,43 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
             'sensor_msgs/Image',
             'with `publish_debug`: rgb8 turbo-coloured inverse depth, black where unknown',
             'reliable',
+        ),
+        DIAGNOSTICS_TOPIC,
+    ),
+    diagnostics=Diagnostics(
+        inputs=('image', 'camera_info', 'pose'),
+        outputs=('depth', 'mirrored', 'sfm_pose'),
+        latency='from the keyframe complete (image, camera_info and pose; SfM: its pose registered) to '
+        'its first depth published by this worker (waiting for neighbours included)',
+        reasons=(
+            ('image', 'malformed keyframes/image'),
+            ('camera_info', 'malformed camera_info or not the size of its image'),
+            ('pose', 'malformed keyframes/pose'),
+            ('incomplete', 'a keyframe given up before all its messages arrived'),
+            ('depth', "another worker's depth malformed or without a known value"),
+            ('mirror', "another worker's depth whose keyframe never came"),
+            ('status', 'malformed keyframes/status'),
+            ('heartbeat', 'malformed refiners/heartbeat'),
+            ('neighbours', 'a degenerate keyframe set (e.g. coincident cameras)'),
+            ('refine', 'a failed refinement'),
+            ('sfm', 'a keyframe SfM could not take'),
+            ('lost', 'messages DDS reports lost'),
+            ('incompatible_qos', 'a publisher whose QoS cannot match'),
+        ),
+        queues=(
+            ('pending_keyframes', 'keyframes waiting for their other messages (bound `max_pending`)'),
+            ('pending_bytes', 'bytes they hold (bound `max_pending_mb`)'),
+            ('unrefined', "this worker's keyframes not refined yet"),
+            ('sfm_queue', 'keyframes waiting for SfM registration'),
+            ('mirror_pending', "other workers' depth waiting for its keyframe (bound `max_pending`)"),
+        ),
+        model=(
+            ('keyframes', 'keyframes held'),
+            ('refined', "this worker's keyframes refined"),
+            ('published', 'keyframes whose depth this process published (own or mirrored)'),
+            ('bytes', 'bytes of the keyframe images held'),
+            ('sfm_mode', '`auto`, `always` or `off`'),
+            ('sfm_active', 'whether keyframe poses are registered here (SfM mode)'),
         ),
     ),
 )

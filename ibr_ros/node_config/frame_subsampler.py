@@ -9,7 +9,15 @@ from dataclasses import dataclass
 from ibr_ros.core.flight.keyframes import KeyframeConfig
 from ibr_ros.core.flight.status import IMAGE_TRANSPORTS, POSE_MODES
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Topic,
+    Values,
+)
 
 __all__ = ['FRAME_SUBSAMPLER', 'POSE_TYPE_CHOICES', 'FrameSubsamplerConfig']
 
@@ -169,6 +177,7 @@ FRAME_SUBSAMPLER: ParamTable[FrameSubsamplerConfig] = ParamTable(
             'without poses: the sharpest frame of every this-many-seconds window is a keyframe',
             (1e-3, 1e6),
         ),
+        DIAGNOSTICS_PERIOD,
     ),
     build=_build,
     subscribes=(
@@ -203,6 +212,32 @@ FRAME_SUBSAMPLER: ParamTable[FrameSubsamplerConfig] = ParamTable(
             'on every change: pose source (pose / none), camera stream (waiting / streaming / ended: '
             'every camera publisher gone), frames and keyframes so far',
             'reliable, transient local, depth 1',
+        ),
+        DIAGNOSTICS_TOPIC,
+    ),
+    diagnostics=Diagnostics(
+        inputs=('image', 'camera_info', 'pose'),
+        outputs=('keyframes',),
+        latency='from the frame complete (its image, camera_info and pose arrived) to its keyframe published '
+        '(a blurred frame held for the next one, a pose-less frame until its window closes)',
+        reasons=(
+            ('image', 'malformed image'),
+            ('camera_info', 'malformed camera_info or not the size of its image'),
+            ('pose', 'malformed pose'),
+            ('incomplete', 'a frame given up before all its messages arrived'),
+            ('pose_ignored', 'a pose in a flight decided to be without poses'),
+            ('lost', 'messages DDS reports lost (best effort)'),
+            ('incompatible_qos', 'a publisher whose QoS cannot match'),
+        ),
+        queues=(
+            ('pending_frames', 'frames waiting for their other messages (bound `max_pending`)'),
+            ('pending_bytes', 'bytes they hold (bound `max_pending_mb`)'),
+        ),
+        model=(
+            ('frames', 'complete frames received'),
+            ('keyframes', 'keyframes published'),
+            ('pose_source', '`pose`, `none` or `unknown`'),
+            ('camera', '`waiting`, `streaming` or `ended`'),
         ),
     ),
 )

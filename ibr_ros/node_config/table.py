@@ -19,9 +19,19 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from ibr_ros.core.diagnostics import LATENCY_SAMPLES, RATE_WINDOW_S
 from ibr_ros.errors import UserError
 
-__all__ = ['Param', 'ParamTable', 'Topic', 'Value', 'Values']
+__all__ = [
+    'DIAGNOSTICS_PERIOD',
+    'DIAGNOSTICS_TOPIC',
+    'Diagnostics',
+    'Param',
+    'ParamTable',
+    'Topic',
+    'Value',
+    'Values',
+]
 
 #: A parameter value: the ROS parameter types the nodes use.
 Value = bool | int | float | str | list[float] | list[str]
@@ -166,6 +176,68 @@ class Topic:
 
 
 @dataclass(frozen=True)
+class Diagnostics:
+    """What a node reports on ``/diagnostics`` (:class:`~ibr_ros.core.diagnostics.NodeDiagnostics`):
+    its input and output streams (``<stream>.count``, ``<stream>.rate_hz``; a name in ``<>`` stands
+    for several, e.g. ``<topic>``), what its ``latency`` measures, its rejection ``reasons``, its
+    ``queues`` and its ``model`` keys, each with its meaning."""
+
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    latency: str
+    reasons: tuple[tuple[str, str], ...]
+    queues: tuple[tuple[str, str], ...] = ()
+    model: tuple[tuple[str, str], ...] = ()
+
+    def keys(self) -> dict[str, list[str]]:
+        """The documented keys of each area (:data:`~ibr_ros.core.diagnostics.AREAS`)."""
+        streams = lambda names: [f'{n}.{k}' for n in names for k in ('count', 'rate_hz')]  # noqa: E731
+        latency = ['latency.count', 'latency_ms.median', 'latency_ms.p95', 'latency_ms.max']
+        return {
+            'inputs': streams(self.inputs),
+            'outputs': streams(self.outputs) + latency,
+            'rejected': ['total', *(r for r, _ in self.reasons)],
+            'queues': [k for q, _ in self.queues for k in (q, f'{q}.bound')],
+            'model': [k for k, _ in self.model],
+        }
+
+    def reference(self) -> str:
+        """The Markdown block of the node reference."""
+        code = lambda names: ', '.join(f'`{n}`' for n in names) or 'none'  # noqa: E731
+        described = lambda pairs: '; '.join(f'`{k}` {d}' for k, d in pairs) or 'none'  # noqa: E731
+        lines = [
+            f'**Diagnostics** (`{DIAGNOSTICS_TOPIC.name}`, every `diagnostics_period_s`: one '
+            f'DiagnosticStatus per area, named `<node>: <area>`; rates over the last {RATE_WINDOW_S:g} s)',
+            '',
+            '| area | keys | level |',
+            '|---|---|---|',
+            f'| inputs | `<stream>.count`, `<stream>.rate_hz` of {code(self.inputs)} | OK |',
+            f'| outputs | the same of {code(self.outputs)}; `latency.count`, `latency_ms.median`, '
+            f'`latency_ms.p95`, `latency_ms.max` of the last {LATENCY_SAMPLES}: {self.latency} | OK |',
+            f'| rejected | `total` and each reason: {described(self.reasons)} | WARN when the total grew '
+            'since the last report, ERROR while `incompatible_qos` is counted |',
+            f'| queues | `<queue>` (depth) and `<queue>.bound` (0: none) of {described(self.queues)} | WARN '
+            'when one is full |',
+            f'| model | {described(self.model)} | OK |',
+        ]
+        return '\n'.join(lines) + '\n'
+
+
+#: The node's ``/diagnostics`` period, a parameter of every node.
+DIAGNOSTICS_PERIOD = Param(
+    'diagnostics_period_s', 1.0, 'period of the /diagnostics report (s)', (0.1, 3600.0)
+)
+
+#: ``/diagnostics`` (absolute, as diagnostic_updater's), in every node's published topics.
+DIAGNOSTICS_TOPIC = Topic(
+    '/diagnostics',
+    'diagnostic_msgs/DiagnosticArray',
+    "this node's rates, latency, rejections, queues and model size (see Diagnostics below)",
+    'reliable, depth 10',
+)
+
+
+@dataclass(frozen=True)
 class ParamTable(Generic[C]):
     """A node's parameters and the function that builds its core configuration from their values.
 
@@ -179,6 +251,7 @@ class ParamTable(Generic[C]):
     build: Callable[[Values], C]
     subscribes: tuple[Topic, ...] = ()
     publishes: tuple[Topic, ...] = ()
+    diagnostics: Diagnostics | None = None
 
     def __post_init__(self) -> None:
         names = [p.name for p in self.params]
@@ -253,6 +326,8 @@ class ParamTable(Generic[C]):
             dyn = ' (dynamic)' if p.dynamic else ''
             desc = p.description.replace('|', '\\|')
             out.append(f'| `{p.name}` | {p.kind}{dyn} | `{_yaml(p.default)}` | {p.constraints()} | {desc} |')
+        if self.diagnostics is not None:
+            out += ['', self.diagnostics.reference().rstrip('\n')]
         return '\n'.join(out) + '\n'
 
 

@@ -9,7 +9,15 @@ from dataclasses import dataclass
 
 from ibr_ros.core.render import RenderConfig, ReplyPolicy
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Topic,
+    Values,
+)
 
 __all__ = ['INTRINSICS', 'VIEW_RENDERER', 'ViewRendererConfig', 'render_config']
 
@@ -201,6 +209,7 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
             (1.0, 1e6),
         ),
         Param('warmup', True, 'render a tiny scene at start-up so that the first query is fast'),
+        DIAGNOSTICS_PERIOD,
     ),
     build=_build,
     subscribes=(
@@ -254,6 +263,41 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
             '(incomplete, published) or ERROR (refused: no image); key-values result, reason, '
             'valid_fraction, min_valid_fraction, published, views, render_ms',
             'reliable',
+        ),
+        DIAGNOSTICS_TOPIC,
+    ),
+    diagnostics=Diagnostics(
+        inputs=('image', 'camera_info', 'pose', 'depth', 'confidence', 'query'),
+        outputs=('image', 'status'),
+        latency='from the query taken to its image published (rendering included)',
+        reasons=(
+            ('image', 'malformed keyframes/image'),
+            ('camera_info', 'malformed keyframes/camera_info'),
+            ('pose', 'malformed keyframes/pose'),
+            ('depth', 'malformed keyframes/depth'),
+            ('depth_unknown', 'a depth with no known value'),
+            ('confidence', 'malformed confidence, or one whose keyframe never came'),
+            ('size', 'image, depth, confidence and camera_info sizes differ'),
+            ('frame', 'a keyframe in another frame than the model'),
+            ('model_full', 'a keyframe beyond `max_keyframes`'),
+            ('incomplete', 'a keyframe given up before all its messages arrived'),
+            ('lost', 'messages DDS reports lost'),
+            ('incompatible_qos', 'a publisher whose QoS cannot match'),
+            (
+                'query.<reason>',
+                'refused queries by their novel_view/status reason (no_model, frame, '
+                'invalid_query, unrenderable, superseded, render_error, incomplete)',
+            ),
+        ),
+        queues=(
+            ('pending_keyframes', 'keyframes waiting for their other messages (bound `max_keyframes`)'),
+            ('pending_bytes', 'bytes they hold (bound `max_pending_mb`)'),
+        ),
+        model=(
+            ('keyframes', 'keyframes in the model'),
+            ('max_keyframes', 'its bound'),
+            ('usable', 'keyframes the renderer can use'),
+            ('bytes', 'bytes of their images, depth and confidence'),
         ),
     ),
 )

@@ -25,6 +25,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
+from typing import Any
 
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
@@ -40,7 +41,14 @@ from ibr_ros.bag import TYPESTORE, BagMessage, BagReader, open_bag
 from ibr_ros.bag.playback import PlayQos, play_window, undecodable
 from ibr_ros.errors import UserError
 from ibr_ros.node_config.bag_player import BAG_PLAYER
-from ibr_ros.nodes.common import EXIT_BAD_CONFIG, BadInput, declare_table, reliable_qos, run_node
+from ibr_ros.nodes.common import (
+    EXIT_BAD_CONFIG,
+    BadInput,
+    declare_table,
+    reliable_qos,
+    run_node,
+    start_diagnostics,
+)
 from msg_utils.flavor import message_class
 
 EXIT_BAD_INPUT = EXIT_BAD_CONFIG  # a bag that cannot be played exits like a rejected parameter
@@ -114,6 +122,11 @@ class BagPlayer(Node):
         self.first_ns, self.stop_ns = play_window(self.bag, cfg.start_offset_s, cfg.duration_s)
         self._last_clock_wall = -1.0
         self._clock_ns = -1
+        self.passes = 0
+        self._bag_ns = self.bag.start_ns  # of the last message published
+        self.diag = start_diagnostics(
+            self, BAG_PLAYER.diagnostics, self._diagnostics, [o.name for o in self.outs.values()]
+        )
         self.stopping = threading.Event()
         self.finished: Future = Future()
         self._thread = threading.Thread(target=self._run, name='bag_player', daemon=True)
@@ -125,6 +138,15 @@ class BagPlayer(Node):
         )
         by_topic = {t.topic: str(t) for t in plan.topics}
         self.get_logger().info('QoS: ' + ', '.join(by_topic[t] for t in self.outs))
+
+    def _diagnostics(self) -> dict[str, Any]:
+        """What ``/diagnostics`` reports besides the events (:func:`start_diagnostics`)."""
+        model = {
+            'passes': self.passes,
+            'bag_time_s': f'{(self._bag_ns - self.bag.start_ns) / 1e9:.3f}',
+            'duration_s': f'{self.bag.duration_s:.3f}',
+        }
+        return {'rejected': self.bad.counts, 'model': model}
 
     # -- playback thread ---------------------------------------------------------------------
 
@@ -204,8 +226,10 @@ class BagPlayer(Node):
         skipped_before = {t: o.skipped.copy() for t, o in self.outs.items()}
         self._clock_ns = -1  # a new pass may go back in time
         self._publish_clock(self.first_ns, force=True)
+        self.passes = passes + 1
         for msg in self._messages():
             out = self.outs[msg.topic]
+            self.diag.received('bag')
             if problem := undecodable(msg.rawdata, out.decode):
                 self._skip(out, msg, *problem)
                 n_skipped += 1
@@ -220,6 +244,10 @@ class BagPlayer(Node):
             if self.rate == 0:
                 self._flow_control(out)
             out.publisher.publish(msg.rawdata)
+            self.diag.published(out.name)
+            if self.rate > 0:
+                self.diag.measured(max(0.0, time.monotonic() - due))
+            self._bag_ns = msg.timestamp_ns
             out.count += 1
             out.unacked += 1
             count += 1

@@ -1,8 +1,9 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
 """Shared plumbing of the ibr_ros nodes: QoS profiles, parameters with descriptors, bad-input
-accounting, matching messages by stamp (:class:`~ibr_ros.core.flight.stamps.StampAssembler`, re-exported)
-and the process entry point (init, spin, clean shutdown)."""
+accounting, ``/diagnostics`` (:func:`start_diagnostics`), matching messages by stamp
+(:class:`~ibr_ros.core.flight.stamps.StampAssembler`, re-exported) and the process entry point (init,
+spin, clean shutdown)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import faulthandler
 import logging
 import math
 import signal
+import socket
 import sys
 import threading
 import time
@@ -19,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -37,9 +40,17 @@ from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 import msg_utils
+from ibr_ros.core.diagnostics import AreaStatus, NodeDiagnostics
 from ibr_ros.core.flight.stamps import StampAssembler
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Values,
+)
 
 __all__ = [
     'BAD_MESSAGE',
@@ -55,6 +66,7 @@ __all__ = [
     'sensor_qos',
     'size_mismatch',
     'spin_forever',
+    'start_diagnostics',
     'subscribe_field',
 ]
 
@@ -163,15 +175,19 @@ def subscribe_field(
     convert: Callable[[Any], Any],
     put: Callable[[int, str, Any], None],
     bad: BadInput,
+    diag: NodeDiagnostics | None = None,
 ) -> Subscription:
     """Subscribe ``topic``; each message goes through ``convert`` and on to ``put(stamp_ns, field, value)``.
 
     A message that ``convert`` rejects (:data:`BAD_MESSAGE`) is counted and logged by ``bad`` under
     the reason ``field`` and dropped; so are messages DDS reports lost (reason ``lost``, best-effort
-    inputs) and publishers whose QoS cannot match (reason ``incompatible_qos``).
+    inputs) and publishers whose QoS cannot match (reason ``incompatible_qos``). Every message
+    arriving counts as input ``field`` of ``diag``.
     """
 
     def callback(msg: Any) -> None:
+        if diag is not None:
+            diag.received(field)
         try:
             value = convert(msg)
         except BAD_MESSAGE as exc:
@@ -190,6 +206,36 @@ def subscribe_field(
         ),
     )
     return node.create_subscription(msg_type, topic, callback, qos, event_callbacks=events)
+
+
+def start_diagnostics(
+    node: Node,
+    spec: Diagnostics | None,
+    state: Callable[[], dict[str, Any]],
+    outputs: Sequence[str] = (),
+) -> NodeDiagnostics:
+    """The node's :class:`NodeDiagnostics` (streams of ``spec``, placeholders like ``<topic>`` left out,
+    plus ``outputs``), published on ``/diagnostics`` every ``diagnostics_period_s`` (a parameter of the
+    node's table). ``state()`` gives :meth:`NodeDiagnostics.report`'s ``rejected``, ``queues`` and
+    ``model`` at each report. Statuses are named ``<node>: <area>`` (the fully qualified name without
+    its leading slash), hardware_id the host name; the array is stamped with the node clock's now.
+    """
+    if spec is None:
+        raise ValueError(f'{node.get_name()}: its parameter table documents no diagnostics')
+    concrete = lambda names: [n for n in names if not n.startswith('<')]  # noqa: E731
+    diag = NodeDiagnostics(concrete(spec.inputs), [*concrete(spec.outputs), *outputs])
+    period = float(node.get_parameter(DIAGNOSTICS_PERIOD.name).value)
+    pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC.name, reliable_qos(10))
+    name = node.get_fully_qualified_name().lstrip('/')
+    host = socket.gethostname()
+
+    def publish() -> None:
+        areas: list[AreaStatus] = diag.report(**state())
+        header = msg_utils.make_header(node.get_clock().now().nanoseconds, '')
+        pub.publish(msg_utils.areas_to_diagnostics(areas, header, node=name, hardware_id=host))
+
+    node.create_timer(period, publish)
+    return diag
 
 
 def spin_forever(node: Node) -> int:

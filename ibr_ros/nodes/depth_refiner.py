@@ -23,6 +23,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import replace
 from functools import partial
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -37,6 +38,7 @@ from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig, known_depth, refine_job
 from ibr_ros.core.depth.schedule import RefineJob, RefineScheduler
+from ibr_ros.core.diagnostics import Queue
 from ibr_ros.core.flight.status import FlightStatus, ShardMembership
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.registration.sfm import SfmError
@@ -56,6 +58,7 @@ from ibr_ros.nodes.common import (
     reliable_qos,
     run_node,
     size_mismatch,
+    start_diagnostics,
     subscribe_field,
 )
 
@@ -106,6 +109,8 @@ class DepthRefinerNode(Node):
         self._published: set[int] = set()  # stamps whose depth this process published (own or mirrored)
         self._others: dict[int, dict[str, object]] = {}  # depth messages of other workers, by stamp
         self._mirrored: dict[int, bool] = {}  # stamps mirrored here -> whether with their confidence
+        self.model_bytes = 0  # of the keyframe images in the schedule
+        self.diag = start_diagnostics(self, DEPTH_REFINER.diagnostics, self._diagnostics)
         self._create_topics()
         if cfg.warmup:
             seconds = warm_up_refiner(cfg.mvs, self.refiner)
@@ -139,7 +144,9 @@ class DepthRefinerNode(Node):
         ):
             if field == 'pose' and self.sfm_mode == 'always':
                 continue  # keyframes/pose carries this node's own poses
-            subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
+            subscribe_field(
+                self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad, self.diag
+            )
         self.pub_pose = (
             self.create_publisher(PoseStamped, 'keyframes/pose', qos) if self.sfm_mode != 'off' else None
         )
@@ -190,6 +197,26 @@ class DepthRefinerNode(Node):
         used.append(f'sky {config.sky}' + (f' ({sky_spec.path.name})' if sky_spec and sky_spec.path else ''))
         self.get_logger().info(f'depth refinement with {", ".join(used)}')
         return refiner
+
+    def _diagnostics(self) -> dict[str, Any]:
+        """What ``/diagnostics`` reports besides the events (:func:`start_diagnostics`)."""
+        with self._lock:
+            queues = {
+                'pending_keyframes': Queue(len(self.frames), self.frames.max_pending),
+                'pending_bytes': Queue(self.frames.pending_bytes, self.frames.max_bytes or 0),
+                'unrefined': Queue(len(self.schedule.unrefined())),
+                'sfm_queue': Queue(len(self.trigger.queue)),
+                'mirror_pending': Queue(len(self._others), self.max_pending),
+            }
+            model = {
+                'keyframes': len(self.schedule),
+                'refined': len(self.schedule.refined()),
+                'published': len(self._published),
+                'bytes': self.model_bytes,
+                'sfm_mode': self.sfm_mode,
+                'sfm_active': str(self.sfm_active).lower(),
+            }
+        return {'rejected': self.bad.counts, 'queues': queues, 'model': model}
 
     # -- SfM mode state (the SfmTrigger's), by the names the tests and the log use ------------------
     @property
@@ -243,6 +270,8 @@ class DepthRefinerNode(Node):
                 return
             self.frame_ids[stamp] = frame_id
             self.pose_frames[stamp] = pose_frame
+            self.model_bytes += image.nbytes
+            self.diag.started(stamp)
             self._version += 1
             self._last_arrival = time.monotonic()
         self._mirror(stamp)  # another worker's depth may have come first
@@ -382,6 +411,8 @@ class DepthRefinerNode(Node):
             self.pub_conf.publish(conf)
         self.pub_depth.publish(rec['keyframes/depth'])
         self.pub_info.publish(rec['keyframes/depth/camera_info'])
+        self.diag.published('mirrored')
+        self.diag.discard(stamp)  # its depth is another worker's
         self._publish_keyframe(stamp, view)
 
     def _publish_keyframe(self, stamp: int, view: MvsView) -> None:
@@ -492,7 +523,10 @@ class DepthRefinerNode(Node):
                     self.bad('sfm', f'keyframe {stamp} ns: SfM reported it new without a pose')
                     continue
                 self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(t_wc, stamp_ns=stamp, frame_id=world))
-                self.schedule.add(stamp, MvsView(image, camera, t_wc))
+                self.diag.published('sfm_pose')
+                if self.schedule.add(stamp, MvsView(image, camera, t_wc)):
+                    self.model_bytes += image.nbytes
+                    self.diag.started(stamp)
                 self.frame_ids[stamp] = frame_id
             if len(u.points):  # they bound each keyframe's depth range and seed its depth from now on
                 self.schedule.set_points(u.points, u.observed_points(self.sfm.stamps))
@@ -579,6 +613,8 @@ class DepthRefinerNode(Node):
         self.pub_depth.publish(depth_msg)
         info = msg_utils.pinhole_to_camera_info(job.view.camera, header)
         self.pub_info.publish(info)
+        self.diag.published('depth')
+        self.diag.finished(job.stamp)
         if first:
             self._publish_keyframe(job.stamp, job.view)
         if self.debug:

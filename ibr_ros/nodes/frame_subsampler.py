@@ -28,6 +28,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
+from ibr_ros.core.diagnostics import Queue
 from ibr_ros.core.flight.keyframes import (
     Decision,
     IntervalSelector,
@@ -48,6 +49,7 @@ from ibr_ros.nodes.common import (
     model_qos,
     run_node,
     size_mismatch,
+    start_diagnostics,
     subscribe_field,
 )
 
@@ -119,6 +121,7 @@ class FrameSubsampler(Node):
         self.pub_pose = self.create_publisher(PoseStamped, 'keyframes/pose', out)
         self.pub_status = self.create_publisher(DiagnosticStatus, 'keyframes/status', latched_qos())
         self._status: FlightStatus | None = None
+        self.diag = start_diagnostics(self, FRAME_SUBSAMPLER.diagnostics, self._diagnostics)
         self._publish_status()
         images = ' or '.join(self.resolve_topic_name(t) for _, t, _ in self._inputs['image'])
         self.get_logger().info(
@@ -139,7 +142,7 @@ class FrameSubsampler(Node):
                 if not infos:
                     continue
                 qos, how = input_qos(infos)
-                subscribe_field(self, msg_type, topic, qos, field, convert, self._put, self.bad)
+                subscribe_field(self, msg_type, topic, qos, field, convert, self._put, self.bad, self.diag)
                 self.subscribed[field] = name
                 self.get_logger().info(f'{field}: subscribed to {name} ({how})')
                 break
@@ -166,6 +169,22 @@ class FrameSubsampler(Node):
                     f'the last frame was blurred and bridges no gap: dropped ({last.reason})'
                 )
             self._publish_status()
+
+    def _diagnostics(self) -> dict[str, Any]:
+        """What ``/diagnostics`` reports besides the events (:func:`start_diagnostics`)."""
+        return {
+            'rejected': self.bad.counts,
+            'queues': {
+                'pending_frames': Queue(len(self.frames), self.frames.max_pending),
+                'pending_bytes': Queue(self.frames.pending_bytes, self.frames.max_bytes or 0),
+            },
+            'model': {
+                'frames': self.frames_seen,
+                'keyframes': self.keyframes,
+                'pose_source': self.pose_source.state,
+                'camera': self.camera,
+            },
+        }
 
     def _publish_status(self) -> None:
         status = FlightStatus(
@@ -207,6 +226,7 @@ class FrameSubsampler(Node):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
+        self.diag.started(stamp)
         d = self.selector.decide(stamp, pose, blur_px(image), self.decide_depth)
         if d.previous is not None and self._held is not None:  # the held frame before this one
             self._decided(*self._held, d.previous)
@@ -224,6 +244,7 @@ class FrameSubsampler(Node):
         """Count the final decision ``d`` of a frame with a pose; publish the frame if kept."""
         self.decisions[d.reason] += 1
         if not d.keep:
+            self.diag.discard(stamp)
             self.get_logger().debug(f'frame {stamp}: skipped ({d.reason}, blur {d.blur:.1f} px)')
             return
         self._publish(stamp, image, info, pose)
@@ -262,6 +283,8 @@ class FrameSubsampler(Node):
         if pose is not None:
             self.pub_pose.publish(msg_utils.matrix_to_pose_stamped(pose[0], stamp_ns=stamp, frame_id=pose[1]))
         self.keyframes += 1
+        self.diag.published('keyframes')
+        self.diag.finished(stamp)
 
     # -- without poses ----------------------------------------------------------------------------
     def _poseless_frame(self, stamp: int, partial: dict) -> None:
@@ -270,6 +293,7 @@ class FrameSubsampler(Node):
             self.bad('camera_info', mismatch)
             return
         self.frames_seen += 1
+        self.diag.started(stamp)
         blur = blur_px(image)
         if blur > self.config.max_blur_px > 0:
             self.get_logger().debug(f'frame {stamp}: blurred ({blur:.1f} px)')

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -54,6 +55,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.depth.refine import known_depth
+from ibr_ros.core.diagnostics import Queue
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, ReplyStatus, SourceView, output_camera
 from ibr_ros.jobs.warmup import warm_up_renderer
@@ -66,6 +68,7 @@ from ibr_ros.nodes.common import (
     model_qos,
     reliable_qos,
     run_node,
+    start_diagnostics,
     subscribe_field,
 )
 
@@ -98,6 +101,7 @@ class ViewRenderer(Node):
         self.answered = 0
         self.incomplete = 0  # published below min_valid_fraction (publish_incomplete)
         self.latencies: list[float] = []
+        self.diag = start_diagnostics(self, VIEW_RENDERER.diagnostics, self._diagnostics)
         qos = model_qos()
         for msg_type, field, convert in (
             (Image, 'image', lambda m: np.array(msg_utils.image_to_rgb(m))),
@@ -109,10 +113,12 @@ class ViewRenderer(Node):
             ),
             (Image, 'depth', lambda m: np.array(msg_utils.depth_image_to_m(m))),
         ):
-            subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
+            subscribe_field(
+                self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad, self.diag
+            )
         subscribe_field(
             self, Image, 'keyframes/depth/confidence', qos, 'confidence',
-            lambda m: np.array(msg_utils.image_to_confidence(m)), self._on_confidence, self.bad,
+            lambda m: np.array(msg_utils.image_to_confidence(m)), self._on_confidence, self.bad, self.diag,
         )  # fmt: skip
         self._query_sub = self.create_subscription(
             PoseStamped, 'novel_view/query', self._on_query_msg, reliable_qos(100)
@@ -132,6 +138,25 @@ class ViewRenderer(Node):
         self.height = int(new.get('height', self.height))
         self.hfov = float(new.get('hfov_deg', self.hfov))
         return SetParametersResult(successful=True)
+
+    def _diagnostics(self) -> dict[str, Any]:
+        """What ``/diagnostics`` reports besides the events (:func:`start_diagnostics`)."""
+        views = self.renderer.views
+        arrays = [a for v in views for a in (v.rgb, v.depth, v.confidence) if a is not None]
+        return {
+            'rejected': self.bad.counts
+            + Counter({f'query.{r}': n for r, n in self.unanswered.counts.items()}),
+            'queues': {
+                'pending_keyframes': Queue(len(self.frames), self.max_keyframes),
+                'pending_bytes': Queue(self.frames.pending_bytes, self.frames.max_bytes or 0),
+            },
+            'model': {
+                'keyframes': len(self.indices),
+                'max_keyframes': self.max_keyframes,
+                'usable': sum(self.renderer.skip_reason(i) is None for i in range(len(views))),
+                'bytes': sum(a.nbytes for a in arrays),
+            },
+        }
 
     def _warmup(self) -> None:
         seconds = warm_up_renderer(self.config)
@@ -227,12 +252,14 @@ class ViewRenderer(Node):
     # -- queries --------------------------------------------------------------------------------
     def _on_query_msg(self, msg: PoseStamped) -> None:
         """Answer the newest renderable query of those waiting (see module docstring)."""
+        self.diag.received('query')
         newest = self._check(msg)
         while True:  # the queries that arrived meanwhile, oldest first
             with self._query_sub.handle:
                 taken = self._query_sub.handle.take_message(PoseStamped, False)
             if taken is None:
                 break
+            self.diag.received('query')
             if (query := self._check(taken[0])) is None:
                 continue
             if newest is not None:
@@ -276,6 +303,7 @@ class ViewRenderer(Node):
         header = msg_utils.make_header(stamp, self.frame_id)
         name = self.get_fully_qualified_name()
         self.pub_status.publish(msg_utils.reply_to_diagnostics(status, header, name=name))
+        self.diag.published('status')
 
     def _answer(self, stamp: int, t_wc: np.ndarray, t0: float) -> None:
         """Render query ``stamp`` that arrived at ``t0`` (perf_counter); publish the view if the policy
@@ -304,6 +332,8 @@ class ViewRenderer(Node):
         header = msg_utils.make_header(stamp, self.frame_id)
         self.pub_image.publish(msg_utils.numpy_to_image(out.rgb, 'rgb8', header))
         self.pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
+        self.diag.published('image')
+        self.diag.measured(time.perf_counter() - t0)
         self._publish_status(stamp, status)
         dt = time.perf_counter() - t0
         if status.result == 'answered':

@@ -53,3 +53,32 @@ def test_other_diagnostics_are_not_reply_statuses():
     wrong_level.status[0].level = b'\x02'  # ERROR for an answered view
     with pytest.raises(msg_utils.MessageError, match='level 2'):
         msg_utils.diagnostics_to_reply(wrong_level)
+
+
+@pytest.mark.parametrize('flavor', ['rclpy', 'rosbags'])
+def test_node_diagnostics_round_trip(flavor):
+    from ibr_ros.core.diagnostics import NodeDiagnostics, Queue
+
+    d = NodeDiagnostics(('image',), ('keyframes',), clock=lambda: 0.0)
+    d.received('image', 0.5)
+    areas = d.report(1.0, rejected={'pose': 2}, queues={'pending': Queue(1, 4)}, model={'keyframes': 0})
+    header = msg_utils.make_header(1_767_225_601_000_000_000, flavor=flavor)
+    msg = msg_utils.areas_to_diagnostics(
+        areas, header, node='frame_subsampler', hardware_id='host', flavor=flavor
+    )
+    assert [s.name for s in msg.status] == [f'frame_subsampler: {a.area}' for a in areas]
+    assert {s.hardware_id for s in msg.status} == {'host'}
+    rejected = msg.status[2]
+    assert (rejected.level[0] if flavor == 'rclpy' else rejected.level) == msg_utils.status.LEVELS['warn']
+    assert msg_utils.diagnostics_to_areas(msg, 'frame_subsampler') == {a.area: a for a in areas}
+    assert msg_utils.diagnostics_to_areas(msg, 'depth_refiner') == {}  # another node's statuses
+    if flavor == 'rclpy':
+        wire = deserialize_message(serialize_message(msg), DiagnosticArray)
+        got = msg_utils.diagnostics_to_areas(wire, 'frame_subsampler')
+        assert got['inputs'].value('image.count') == '1'
+        assert got['rejected'].value('pose') == '2'
+        wire.status[0].level = bytes([7])
+        with pytest.raises(msg_utils.MessageError, match='frame_subsampler: inputs has level 7'):
+            msg_utils.diagnostics_to_areas(wire, 'frame_subsampler')
+    with pytest.raises(msg_utils.MessageError, match='not a DiagnosticArray'):
+        msg_utils.diagnostics_to_areas(msg.status[0], 'frame_subsampler')

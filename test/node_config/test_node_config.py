@@ -83,3 +83,19 @@ def test_every_parameter_is_described_and_numbers_have_a_range(node) -> None:
         if p.kind in ('int', 'double'):
             assert p.range is not None, f'{node}.{p.name} has no range'
             assert p.range[0] <= p.default <= p.range[1], p.name
+
+
+@pytest.mark.parametrize('node', ['bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer'])
+def test_every_node_documents_its_diagnostics_and_their_period(node) -> None:
+    from ibr_ros.core.diagnostics import AREAS
+    from ibr_ros.node_config.table import DIAGNOSTICS_PERIOD, DIAGNOSTICS_TOPIC
+
+    table = TABLES[node]
+    assert table['diagnostics_period_s'] == DIAGNOSTICS_PERIOD
+    assert DIAGNOSTICS_TOPIC in table.publishes
+    assert table.diagnostics is not None
+    keys = table.diagnostics.keys()
+    assert list(keys) == list(AREAS)
+    assert 'total' in keys['rejected']
+    assert {'latency.count', 'latency_ms.median', 'latency_ms.p95', 'latency_ms.max'} <= set(keys['outputs'])
+    assert table.diagnostics.reference() in table.reference()
