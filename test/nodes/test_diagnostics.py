@@ -241,8 +241,10 @@ def test_view_renderer_diagnostics(repo):
         h.send(query, bad)
         want = {'depth.count': '5', 'image.count': '4', 'query.count': '2'}
 
-        def fed(a: dict[str, AreaStatus]) -> bool:
-            return want.items() <= _counts(a, 'inputs').items()
+        def fed(a: dict[str, AreaStatus]) -> bool:  # inputs are counted before the render ends
+            out = _counts(a, 'outputs')
+            settled = out.get('status.count') == '2' and _counts(a, 'rejected').get('total') == '2'
+            return want.items() <= _counts(a, 'inputs').items() and settled
 
         assert h.wait(lambda: _areas(diag, 'view_renderer', fed) is not None, 60)
         areas = _areas(diag, 'view_renderer', fed)
