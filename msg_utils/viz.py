@@ -6,8 +6,9 @@
 
 Point clouds have the fields ``x``, ``y``, ``z`` (FLOAT32) and ``rgb`` (FLOAT32 holding the packed
 little-endian ``0x00RRGGBB``, as PCL, RViz and Foxglove read it), 16 bytes a point, one row.
-``tf2_msgs`` has no PyPI wheel: rclpy-flavour TF messages need a ROS install
-(:func:`tf_available`); rosbags-flavour ones always work (for bags).
+``tf2_msgs`` has no PyPI wheel: rclpy-flavour TF messages need a ROS install or the
+``vendor/tf2_msgs`` that ``make install`` builds (:func:`tf_available`); rosbags-flavour ones always
+work (for bags).
 """
 
 from __future__ import annotations
@@ -188,7 +189,9 @@ def transforms_to_tf(
     Raises MessageError for the rclpy flavour where ``tf2_msgs`` is not installed.
     """
     if flavor == 'rclpy' and not tf_available():
-        raise MessageError('tf2_msgs is not installed (no PyPI wheel): TF needs a ROS 2 install')
+        raise MessageError(
+            'tf2_msgs is not installed (no PyPI wheel): TF needs a ROS 2 install or tools/build_tf2_msgs.sh'
+        )
     out = [
         matrix_to_transform_stamped(t, parent=parent, child=child, stamp_ns=stamp, flavor=flavor)
         for stamp, parent, child, t in transforms

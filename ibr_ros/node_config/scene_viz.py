@@ -53,8 +53,8 @@ SCENE_VIZ: ParamTable[SceneVizConfig] = ParamTable(
         "poses, frustums (and the novel view's while navigating) and a coloured point cloud of each "
         'refined keyframe (confident pixels only), latched so that a viewer that joins late sees the '
         'whole reconstruction. `ibr process` writes the same topics into its output bag. TF needs '
-        '`tf2_msgs` (a ROS 2 install; it has no PyPI wheel): without it /tf and /tf_static are not '
-        'published live (logged once), the rest is.'
+        '`tf2_msgs` (a ROS 2 install has it; `make install` builds it into a pip venv): without it '
+        '/tf and /tf_static are not published live (a warning at start-up), the rest is.'
     ),
     params=(
         Param(
@@ -83,11 +83,12 @@ SCENE_VIZ: ParamTable[SceneVizConfig] = ParamTable(
             "camera/pose message: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)",
             choices=('pose', 'odometry'),
         ),
-        Param('point_stride', 4, 'keyframe points: every n-th pixel in x and y', (1, 64)),
+        Param('point_stride', 2, 'keyframe points: every n-th pixel in x and y', (1, 64)),
         Param(
             'min_confidence',
             0.5,
-            'keyframe points: only pixels whose depth confidence is at least this',
+            'keyframe points: only pixels whose depth confidence is at least this (0.5: MVS-backed depth; '
+            'below: filled from monocular depth)',
             (0.0, 1.0),
         ),
         Param(

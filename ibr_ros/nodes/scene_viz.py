@@ -8,8 +8,9 @@ Topics, parameters and behaviour: ``doc/nodes.md`` (generated from
 topics into it and publishes. The aggregate topics (``keyframes/poses``, ``keyframes/frustums``,
 ``/tf_static``) are republished whole on every change, latched (the latest), so a viewer that joins
 late gets everything; ``keyframes/points`` keeps one cloud per keyframe (transient local, deep as
-the model). TF needs ``tf2_msgs`` (a ROS 2 install; no PyPI wheel): without it /tf and /tf_static
-are not published (logged at start-up; the poses are still on ``keyframes/poses``).
+the model). TF needs ``tf2_msgs`` (a ROS 2 install has it; no PyPI wheel, so ``make install`` builds
+``vendor/tf2_msgs`` into a pip venv): without it /tf and /tf_static are not published (a warning at
+start-up; the poses are still on ``keyframes/poses``).
 """
 
 from __future__ import annotations
@@ -73,8 +74,9 @@ class SceneViz(Node):
             self.pub_tf_static = self.create_publisher(TFMessage, '/tf_static', latched_qos())
         else:
             self.get_logger().warning(
-                'tf2_msgs is not installed (no PyPI wheel; a ROS 2 install has it): /tf and /tf_static '
-                'are not published; keyframes/poses, keyframes/frustums and keyframes/points are'
+                'tf2_msgs is not installed (no PyPI wheel; a ROS 2 install has it, `make install` builds '
+                'it into a venv): /tf and /tf_static are not published; keyframes/poses, '
+                'keyframes/frustums and keyframes/points are'
             )
         for msg_type, field, convert in (
             (

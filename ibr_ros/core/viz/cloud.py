@@ -25,7 +25,7 @@ class CloudConfig:
     left are thinned evenly), 0 = none.
     """
 
-    stride: int = 4
+    stride: int = 2
     min_confidence: float = 0.5
     max_points: int = 50000
 
