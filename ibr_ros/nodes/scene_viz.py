@@ -103,6 +103,12 @@ class SceneViz(Node):
             self, CameraInfo, 'novel_view/camera_info', reliable_qos(), 'view_info',
             msg_utils.camera_info_to_pinhole, self._on_view_info, self.bad,
         )  # fmt: skip
+        c = cfg.viz
+        self.get_logger().info(
+            f'showing the model: points every {c.cloud.stride} px with confidence >= '
+            f'{c.cloud.min_confidence:g}; TF {"on" if self.pub_tf else "off"} (camera {c.frames.camera!r}, '
+            f'body {c.frames.body!r}, keyframes {c.frames.keyframe_prefix!r}<stamp>_optical_frame)'
+        )
 
     # -- keyframes ------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: Any) -> None:
