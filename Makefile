@@ -27,7 +27,13 @@ $(VENV)/.deps: requirements/constraints.txt requirements/runtime.txt requirement
 	$(PIP) install -q -c requirements/constraints.txt -r requirements/runtime.txt -r requirements/test.txt
 	@touch $@
 
-$(VENV)/.installed: $(VENV)/.deps $(SOURCES)
+# tf2_msgs has no PyPI wheel: build it (TFMessage only, vendor/tf2_msgs) into the venv where it is
+# missing, so that scene_viz publishes /tf and /tf_static; a ROS 2 install's is used as it is.
+$(VENV)/.tf2_msgs: $(VENV)/.deps vendor/tf2_msgs/CMakeLists.txt vendor/tf2_msgs/msg/TFMessage.msg requirements/tf2_msgs_build.txt
+	sh tools/build_tf2_msgs.sh $(VENV) || echo "warning: tf2_msgs not built (see above): scene_viz will not publish /tf live"
+	@touch $@
+
+$(VENV)/.installed: $(VENV)/.deps $(VENV)/.tf2_msgs $(SOURCES)
 	$(PIP) install -q --no-deps --no-build-isolation --force-reinstall .
 	@rm -rf build *.egg-info
 	@# Compile the nodes' numba kernels into the installed package's cache: first starts take seconds.

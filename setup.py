@@ -53,7 +53,11 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml', 'LICENSE']),
-        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        # params files, the RViz config and the Foxglove layout
+        (
+            f'share/{PACKAGE}/config',
+            [*glob('config/*.yaml'), 'config/ibr.rviz', 'config/foxglove_layout.json'],
+        ),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
         (f'lib/{PACKAGE}', _launchers()),
     ],

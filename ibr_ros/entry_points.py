@@ -11,4 +11,5 @@ CONSOLE_SCRIPTS: dict[str, str] = {
     'bag_player': 'ibr_ros.nodes.bag_player:main',
     'depth_refiner': 'ibr_ros.nodes.depth_refiner:main',
     'view_renderer': 'ibr_ros.nodes.view_renderer:main',
+    'scene_viz': 'ibr_ros.nodes.scene_viz:main',
 }

@@ -41,7 +41,7 @@ __all__ = [
 LOG = logging.getLogger(__name__)
 
 #: The nodes of the graph, in start order.
-GRAPH_NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer')
+GRAPH_NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer', 'scene_viz')
 
 
 def config_dir() -> Path:

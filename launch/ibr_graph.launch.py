@@ -73,6 +73,10 @@ def _nodes(context, *args, **kwargs):
         Node(package='ibr_ros', executable='view_renderer', name='view_renderer',
              parameters=params('view_renderer'), output='screen')
     )  # fmt: skip
+    actions.append(  # the model for RViz / Foxglove (config/ibr.rviz, config/foxglove_layout.json)
+        Node(package='ibr_ros', executable='scene_viz', name='scene_viz',
+             parameters=params('scene_viz'), output='screen')
+    )  # fmt: skip
     return actions
 
 

@@ -31,7 +31,7 @@ def test_specs_with_sharded_refiners(repo):
         _args(bag=str(repo / 'bags' / 'synth_orbit_s0'), refiners=2, set=['view_renderer.width=320'])
     )
     assert [s.label for s in specs] == [
-        'bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer'
+        'bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer', 'scene_viz'
     ]  # fmt: skip
     assert specs[2].params == {'worker_index': 0, 'num_workers': 2}
     player = specs[0].params  # playback waits for the frame_subsampler, however long that takes
@@ -111,7 +111,9 @@ def test_launch_file_starts_the_same_nodes(repo, monkeypatch):
     context = {**defaults, 'config_dir': str(repo / 'config'), 'bag': bag, 'rate': '2.0', 'refiners': '2'}
     opaque.function(context)
     names = [n['name'] for n in started]
-    assert names == ['bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer']
+    assert names == [
+        'bag_player', 'frame_subsampler', 'depth_refiner_0', 'depth_refiner_1', 'view_renderer', 'scene_viz'
+    ]  # fmt: skip
     assert started[0]['parameters'][1] == {
         'bag': bag,
         'rate': 2.0,
@@ -165,7 +167,7 @@ def test_set_values_are_read_as_yaml_and_checked_against_the_node_table(repo):
     renderer = next(s for s in specs if s.name == 'view_renderer')
     assert renderer.params == {'hfov_deg': 80.0, 'frame_id': 'cam', 'warmup': False}
     assert 'hfov_deg:=80.0' in node_command(renderer)
-    quoted = build_specs(_args(no_player=True, set=["view_renderer.frame_id='1'"]))[-1]
+    quoted = build_specs(_args(no_player=True, set=["view_renderer.frame_id='1'"]))[-2]
     assert quoted.params == {'frame_id': '1'}
     assert "frame_id:='1'" in node_command(quoted)  # read back as the string '1', not the integer 1
     with pytest.raises(UserError, match=r'parameter view_renderer\.width must be an integer'):

@@ -67,6 +67,7 @@ def build_specs(args: argparse.Namespace) -> list:
         name = f'depth_refiner_{i}' if args.refiners > 1 else None
         specs.append(NodeSpec('depth_refiner', {**shard, **refiner}, node_name=name))
     specs.append(NodeSpec('view_renderer', sets.pop('view_renderer', {})))
+    specs.append(NodeSpec('scene_viz', sets.pop('scene_viz', {})))  # the model for RViz / Foxglove
     if sets:
         raise UserError(f'--set names unknown nodes: {", ".join(sorted(sets))}')
     return specs

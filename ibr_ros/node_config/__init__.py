@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from ibr_ros.node_config.bag_player import BAG_PLAYER, BagPlayerConfig
     from ibr_ros.node_config.depth_refiner import DEPTH_REFINER, DepthRefinerConfig
     from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
+    from ibr_ros.node_config.scene_viz import SCENE_VIZ, SceneVizConfig
     from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER, ViewRendererConfig, render_config
 
     #: Every node's table, by node name, in the order data flows through the graph.
@@ -31,6 +32,7 @@ __all__ = [
     'FRAME_SUBSAMPLER',
     'INTRINSICS',
     'NODES',
+    'SCENE_VIZ',
     'TABLES',
     'VIEW_RENDERER',
     'BagPlayerConfig',
@@ -38,6 +40,7 @@ __all__ = [
     'FrameSubsamplerConfig',
     'Param',
     'ParamTable',
+    'SceneVizConfig',
     'Topic',
     'Value',
     'Values',
@@ -47,7 +50,7 @@ __all__ = [
 ]
 
 #: The nodes with a parameter table, in the order data flows through the graph.
-NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer')
+NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer', 'scene_viz')
 
 #: Where each lazily imported name lives (a module of this package).
 _LAZY = {
@@ -60,6 +63,8 @@ _LAZY = {
     'VIEW_RENDERER': 'view_renderer',
     'ViewRendererConfig': 'view_renderer',
     'INTRINSICS': 'view_renderer',
+    'SCENE_VIZ': 'scene_viz',
+    'SceneVizConfig': 'scene_viz',
     'render_config': 'view_renderer',
 }
 

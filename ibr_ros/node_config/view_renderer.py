@@ -138,6 +138,7 @@ class ViewRendererConfig:
     max_keyframes: int
     max_pending_bytes: int
     warmup: bool
+    jpeg_quality: int = 90
 
 
 def render_config(values: Mapping[str, object]) -> RenderConfig:
@@ -164,6 +165,7 @@ def _build(v: Values) -> ViewRendererConfig:
         max_keyframes=v.integer('max_keyframes'),
         max_pending_bytes=round(v.number('max_pending_mb') * 2**20),
         warmup=v.flag('warmup'),
+        jpeg_quality=v.integer('jpeg_quality'),
     )
 
 
@@ -200,6 +202,12 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
             'publish views below min_valid_fraction too (their status says incomplete, level WARN)',
         ),
         Param('frame_id', 'novel_view_optical', 'header.frame_id of the replies'),
+        Param(
+            'jpeg_quality',
+            90,
+            'JPEG quality of novel_view/image/compressed (for viewers over slow links); 0 = not published',
+            (0, 100),
+        ),
         *_RENDER,
         Param('max_keyframes', 1000, 'keyframes kept in the model', (1, 100000)),
         Param(
@@ -248,6 +256,12 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
             'novel_view/image',
             'sensor_msgs/Image',
             "rgb8 view, black where nothing was rendered; the query's stamp",
+            'reliable',
+        ),
+        Topic(
+            'novel_view/image/compressed',
+            'sensor_msgs/CompressedImage',
+            "the same view as JPEG (image_transport `compressed`, `jpeg_quality`); the query's stamp",
             'reliable',
         ),
         Topic(

@@ -13,8 +13,9 @@ computed when it arrives (:meth:`~ibr_ros.core.render.renderer.NovelViewRenderer
 
 Queries: ``novel_view/query`` (``geometry_msgs/PoseStamped``, reliable): camera-to-world pose of
 the desired optical frame in the model's frame (``map``; an empty frame_id is taken as it).
-Replies (reliable): ``novel_view/image`` (``rgb8``, black where nothing was rendered) and
-``novel_view/camera_info``, both with the query's header stamp so that clients can match them.
+Replies (reliable): ``novel_view/image`` (``rgb8``, black where nothing was rendered), the same as
+JPEG on ``novel_view/image/compressed`` (``jpeg_quality``, 0 = off) and ``novel_view/camera_info``,
+all with the query's header stamp so that clients can match them.
 Output intrinsics: ``width`` x ``height`` with ``hfov_deg``; each 0 takes the latest keyframe's
 (all three 0: the keyframe camera itself, distortion dropped). They may be changed at run time
 (``ros2 param set``, ``ibr query --width/--height/--hfov``).
@@ -51,7 +52,7 @@ from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
 from ibr_ros.core.depth.refine import known_depth
@@ -125,6 +126,12 @@ class ViewRenderer(Node):
         )
         self.pub_image = self.create_publisher(Image, 'novel_view/image', reliable_qos())
         self.pub_info = self.create_publisher(CameraInfo, 'novel_view/camera_info', reliable_qos())
+        self.jpeg_quality = cfg.jpeg_quality
+        self.pub_jpeg = (
+            self.create_publisher(CompressedImage, 'novel_view/image/compressed', reliable_qos())
+            if self.jpeg_quality
+            else None
+        )
         # As deep as the query queue: one callback may refuse every query waiting (superseded) at once.
         self.pub_status = self.create_publisher(DiagnosticArray, 'novel_view/status', reliable_qos(100))
         self.add_on_set_parameters_callback(self._on_params)
@@ -331,6 +338,9 @@ class ViewRenderer(Node):
             return
         header = msg_utils.make_header(stamp, self.frame_id)
         self.pub_image.publish(msg_utils.numpy_to_image(out.rgb, 'rgb8', header))
+        if self.pub_jpeg is not None:
+            jpeg = msg_utils.numpy_to_compressed_image(out.rgb, quality=self.jpeg_quality, header=header)
+            self.pub_jpeg.publish(jpeg)
         self.pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
         self.diag.published('image')
         self.diag.measured(time.perf_counter() - t0)

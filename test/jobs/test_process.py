@@ -81,7 +81,10 @@ def test_output_bag_topics_counts_and_stamps(processed):
         assert {t: i.msgtype for t, i in reader.topics.items()} == dict(OUT_TOPICS.values())
         # recorded as the graph offers them, so bag_player replays keyframes to late-joining renderers
         durability = {t: {q.durability for q in i.offered_qos} for t, i in reader.topics.items()}
-    expected = {t: {'transient_local' if t.startswith('/keyframes/') else 'volatile'} for t in durability}
+    expected = {
+        t: {'transient_local' if t.startswith('/keyframes/') or t == '/tf_static' else 'volatile'}
+        for t in durability
+    }
     assert durability == expected
     counts = {t: len(v) for t, v in msgs.items()}
     keyframe_topics = [
@@ -90,12 +93,17 @@ def test_output_bag_topics_counts_and_stamps(processed):
         if k in ('image', 'camera_info', 'pose', 'depth', 'depth_info', 'confidence')
     ]
     assert counts == {**dict.fromkeys(keyframe_topics, n), '/novel_view/query': 3, '/novel_view/status': 3,
-                      '/novel_view/image': answered, '/novel_view/camera_info': answered}  # fmt: skip
+                      '/novel_view/image': answered, '/novel_view/camera_info': answered,
+                      '/novel_view/image/compressed': answered,
+                      # the scene_viz's: per keyframe, and the novel view's frustum and TF per answer
+                      '/keyframes/points': n, '/keyframes/poses': n, '/tf_static': n,
+                      '/keyframes/frustums': n + answered, '/tf': n + answered}  # fmt: skip
     assert counts == summary['output']['topics']
     stamps = {}
     for topic, rows in msgs.items():
         for log_time, msg, _ in rows:
-            assert msg_utils.stamp_to_ns(msg.header.stamp) == log_time
+            for h in _headers(msg):
+                assert msg_utils.stamp_to_ns(h.stamp) == log_time or topic == '/tf_static', topic
         stamps[topic] = [r[0] for r in rows]
     kf_stamps = stamps['/keyframes/image']
     assert kf_stamps == sorted(kf_stamps)
@@ -139,6 +147,100 @@ def test_output_bag_topics_counts_and_stamps(processed):
     assert len(previews) == n + 3
 
 
+def _headers(msg: object) -> list:
+    """The headers of a message: its own, or its transforms' / markers' (TFMessage, MarkerArray)."""
+    if hasattr(msg, 'header'):
+        return [msg.header]
+    return [m.header for m in getattr(msg, 'transforms', None) or getattr(msg, 'markers', [])]
+
+
+def _tf_tree(msgs: list) -> dict[str, tuple[str, np.ndarray]]:
+    """child -> (parent, T child-to-parent) of TFMessages, the later winning (a TF buffer at one time)."""
+    tree = {}
+    for m in msgs:
+        for tf in m.transforms:
+            tree[tf.child_frame_id] = (tf.header.frame_id, msg_utils.transform_stamped_to_matrix(tf))
+    return tree
+
+
+def _lookup(tree: dict, target: str, source: str) -> np.ndarray:
+    """The transform from ``source`` to ``target`` coordinates, walking ``source`` up the tree."""
+    t, frame = np.eye(4), source
+    while frame != target:
+        assert frame in tree, f'no TF chain from {source} to {target} (stuck at {frame})'
+        frame, step = tree[frame]
+        t = step @ t
+    return t
+
+
+def test_output_bag_shows_the_model_in_viewers(processed):
+    """TF resolvable and equal to the poses, points on the depth, frustums and poses of every keyframe."""
+    from ibr_ros.core.viz import keyframe_points
+    from ibr_ros.node_config import SCENE_VIZ
+
+    cfg = SCENE_VIZ.config({})
+    msgs = _messages(processed / 'bag')
+    kf = {s: {'pose': msg_utils.pose_stamped_to_matrix(m)} for s, m, _ in msgs['/keyframes/pose']}
+    for topic, key, conv in (
+        ('/keyframes/image', 'rgb', msg_utils.image_to_rgb),
+        ('/keyframes/depth', 'depth', msg_utils.depth_image_to_m),
+        ('/keyframes/depth/confidence', 'conf', msg_utils.image_to_confidence),
+        ('/keyframes/camera_info', 'cam', msg_utils.camera_info_to_pinhole),
+    ):
+        for s, m, _ in msgs[topic]:
+            kf[s][key] = conv(m)
+    # TF: the keyframes on /tf_static (latched: the last message holds them all), the camera on /tf.
+    static = _tf_tree([msgs['/tf_static'][-1][1]])
+    for s, k in kf.items():
+        np.testing.assert_allclose(
+            _lookup(static, 'map', f'keyframe_{s}_optical_frame'), k['pose'], atol=1e-9
+        )
+    dynamic = {s: m for s, m, _ in msgs['/tf']}
+    for s, k in kf.items():
+        tree = _tf_tree([dynamic[s]])
+        assert tree['camera_optical_frame'][0] == 'camera_link'  # map -> camera_link -> optical (REP-103)
+        np.testing.assert_allclose(_lookup(tree, 'map', 'camera_optical_frame'), k['pose'], atol=1e-9)
+    for s, q, _ in msgs['/novel_view/query']:
+        tree = _tf_tree([dynamic[s]])
+        np.testing.assert_allclose(
+            _lookup(tree, 'map', 'novel_view_optical'), msg_utils.pose_stamped_to_matrix(q), atol=1e-9
+        )
+    # Points: the same core function from the bag's own keyframe topics, and on the depth map.
+    assert [s for s, _, _ in msgs['/keyframes/points']] == sorted(kf)
+    for s, m, _ in msgs['/keyframes/points']:
+        k = kf[s]
+        assert m.header.frame_id == 'map'
+        xyz, rgb = msg_utils.cloud_to_points(m)
+        want = keyframe_points(k['depth'], k['rgb'], k['cam'], k['pose'], k['conf'], cfg.viz.cloud)
+        np.testing.assert_array_equal(xyz, want[0])
+        np.testing.assert_array_equal(rgb, want[1])
+        assert 300 < len(xyz) <= cfg.viz.cloud.max_points
+        u, v, z = k['cam'].pixels_of(xyz, k['pose'])
+        assert len(z) == len(xyz)
+        np.testing.assert_allclose(z, k['depth'][v, u], rtol=1e-4)
+        np.testing.assert_array_equal(rgb, k['rgb'][v, u])
+        assert (k['conf'][v, u] >= cfg.viz.cloud.min_confidence).all()
+    # Poses and frustums: whole and latched, the last holds every keyframe (+ the last novel view).
+    poses = msgs['/keyframes/poses'][-1][1]
+    assert len(poses.poses) == len(kf)
+    for p, k in zip(poses.poses, (kf[s] for s in sorted(kf))):
+        np.testing.assert_allclose(msg_utils.pose_to_matrix(p), k['pose'], atol=1e-9)
+    markers = msgs['/keyframes/frustums'][-1][1].markers
+    assert [(m.ns, m.id) for m in markers] == [('keyframes', i) for i in range(len(kf))] + [('novel_view', 0)]
+    for m, s in zip(markers, sorted(kf)):
+        assert (m.type, m.action, m.header.frame_id) == (5, 0, 'map')
+        assert len(m.points) % 2 == 0
+        assert m.scale.x > 0
+        assert m.color.a > 0
+        first = m.points[0]
+        np.testing.assert_allclose([first.x, first.y, first.z], kf[s]['pose'][:3, 3], atol=1e-9)
+    # The novel view over slow links: a JPEG of the same image.
+    for (_, raw, _), (_, jpeg, _) in zip(msgs['/novel_view/image'], msgs['/novel_view/image/compressed']):
+        assert jpeg.format == 'rgb8; jpeg compressed bgr8'
+        diff = np.abs(msg_utils.compressed_image_to_numpy(jpeg).astype(int) - msg_utils.image_to_rgb(raw))
+        assert diff.mean() < 8
+
+
 def test_output_bag_readable_by_rosbags_and_mcap(processed):
     from mcap.reader import make_reader
     from rosbags.rosbag2 import Reader
@@ -157,6 +259,19 @@ def test_output_bag_readable_by_rosbags_and_mcap(processed):
             TYPESTORE.deserialize_cdr(message.data, schema.name)
             seen[channel.topic] = seen.get(channel.topic, 0) + 1
     assert seen == counts
+    # The mcap reader alone (mcap-ros2-support decodes with the ros2msg schemas in the file, as
+    # Foxglove does): the viewer topics are complete.
+    from mcap_ros2.decoder import DecoderFactory
+
+    with (processed / 'bag' / 'bag_0.mcap').open('rb') as f:
+        decoded = {
+            c.topic: m
+            for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()
+        }
+    assert decoded['/tf_static'].transforms[0].header.frame_id == 'map'
+    assert decoded['/keyframes/frustums'].markers[-1].ns == 'novel_view'
+    assert decoded['/keyframes/points'].fields[3].name == 'rgb'
+    assert decoded['/keyframes/poses'].poses
 
 
 def test_depth_close_to_ground_truth(processed, flight):
@@ -288,9 +403,12 @@ def test_sfm_poseless_bag_registered_and_refined(sfm_processed, flight):
     msgs = _messages(sfm_processed / 'bag')
     n = summary['keyframes']
     per_keyframe = ('image', 'camera_info', 'pose', 'depth', 'depth_info', 'confidence')
+    refined = len(msgs['/keyframes/depth'])
     assert {t: len(v) for t, v in msgs.items()} == {
         **{t: n for k, (t, _) in OUT_TOPICS.items() if k in per_keyframe},
         '/novel_view/query': 3, '/novel_view/image': 3, '/novel_view/camera_info': 3, '/novel_view/status': 3,
+        '/novel_view/image/compressed': 3, '/keyframes/points': refined, '/keyframes/poses': n,
+        '/tf_static': n, '/keyframes/frustums': n + 3, '/tf': n + 3,
     }  # fmt: skip
     assert {m.header.frame_id for _, m, _ in msgs['/keyframes/pose'] + msgs['/novel_view/query']} == {'sfm'}
     # SfM's refined camera, undistorted: a pinhole without distortion, the same for every keyframe.

@@ -312,7 +312,7 @@ def test_a_dead_shard_is_taken_over_and_the_model_outlives_its_publishers(repo, 
 def test_nodes_stop_cleanly_on_sigterm_and_sigint(ros_env):
     """Every node, SIGTERM or SIGINT: exit 0, no traceback, no glog stack dump (SIGUSR1 before:
     the Python stacks, and the node goes on)."""
-    for name in ('depth_refiner', 'view_renderer', 'frame_subsampler'):
+    for name in ('depth_refiner', 'view_renderer', 'frame_subsampler', 'scene_viz'):
         for sig in (signal.SIGTERM, signal.SIGINT):
             p = _launch(name, ros_env)
             try:
@@ -348,12 +348,14 @@ def test_ibr_graph_sigterm_leaves_no_node_behind(repo, ros_env, tmp_path):
         [sys.executable, '-m', 'ibr_ros.cli.main', 'graph', '--no-player', '--log-dir', str(tmp_path)],
         env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
-    logs = [tmp_path / f'{n}.log' for n in ('frame_subsampler', 'depth_refiner', 'view_renderer')]
+    logs = [
+        tmp_path / f'{n}.log' for n in ('frame_subsampler', 'depth_refiner', 'view_renderer', 'scene_viz')
+    ]
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not all(f.exists() and 'INFO' in f.read_text() for f in logs):
         time.sleep(0.1)
     children = _children(p.pid)
-    assert len(children) == 3, children
+    assert len(children) == 4, children
     p.send_signal(signal.SIGTERM)
     out, _ = p.communicate(timeout=60)
     assert p.returncode == 0, out

@@ -60,7 +60,7 @@ from node_harness import (
 )
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 import msg_utils
 from ibr_ros.bag import BagWriter, open_bag
@@ -396,6 +396,7 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
     with in_process(ViewRenderer, config, FEEDER, n_segments=400) as h:
         node = h.node
         replies = h.collect(Image, 'novel_view/image', reliable_qos())
+        jpegs = h.collect(CompressedImage, 'novel_view/image/compressed', reliable_qos())
         infos = h.collect(CameraInfo, 'novel_view/camera_info', reliable_qos())
         statuses = h.collect(DiagnosticArray, 'novel_view/status', reliable_qos(1000))
         pubs = h.publishers({
@@ -404,7 +405,7 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
             'query': (PoseStamped, 'novel_view/query', reliable_qos()),
         })  # fmt: skip
         outs = [p for p in node.publishers if p.topic_name.startswith('/novel_view/')]
-        assert h.wait(lambda: len(outs) == 3 and all(p.get_subscription_count() > 0 for p in outs), 30)
+        assert h.wait(lambda: len(outs) == 4 and all(p.get_subscription_count() > 0 for p in outs), 30)
         capfd.readouterr()
 
         def keyframe(f: dict, stamp: int, *, cam=None, depth=None, frame_id: str = 'map') -> None:
@@ -467,7 +468,7 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
                         o.x = o.y = o.z = o.w = 0.0
                     verdicts[stamp] = (RND_REASON[kind][1], None)
                     h.send(pubs['query'], q)
-        assert h.wait(lambda: len(replies) >= len(expected) and len(infos) >= len(expected), 20)
+        assert h.wait(lambda: min(len(replies), len(infos), len(jpegs)) >= len(expected), 20)
         assert h.wait(lambda: len(statuses) >= len(verdicts), 20), (len(statuses), len(verdicts))
         assert h.alive, h.error
         seconds = time.monotonic() - t0
@@ -488,6 +489,11 @@ def test_view_renderer_survives_1000_bad_messages(repo, bag, capfd):
     for m, (_, rgb) in zip(replies, expected):
         assert (m.encoding, m.width, m.height) == ('rgb8', 320, 180)
         np.testing.assert_array_equal(msg_utils.image_to_numpy(m), rgb)
+    # The same views as JPEG (image_transport compressed) for viewers over slow links.
+    assert [msg_utils.stamp_to_ns(m.header.stamp) for m in jpegs] == [s for s, _ in expected]
+    for m, (_, rgb) in zip(jpegs, expected):
+        assert m.format == 'rgb8; jpeg compressed bgr8'
+        assert np.abs(msg_utils.compressed_image_to_numpy(m).astype(int) - rgb).mean() < 8
     got = dict(map(msg_utils.diagnostics_to_reply, statuses))
     assert len(got) == len(statuses) == len(verdicts), 'one status per query'
     for stamp, (reason, frac) in verdicts.items():

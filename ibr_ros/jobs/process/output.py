@@ -13,6 +13,7 @@ import numpy as np
 
 import msg_utils
 from ibr_ros.bag import BagWriter, OfferedQos
+from ibr_ros.core.viz import VizModel
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.params import ProcessConfigs
@@ -25,6 +26,9 @@ from msg_utils.flavor import Flavor
 #: so that bag_player and ros2 bag play offer it again (a late-joining renderer gets the whole model).
 MODEL_QOS = OfferedQos('reliable', 'transient_local', depth=1000)
 REPLY_QOS = OfferedQos('reliable', 'volatile', depth=10)
+#: The scene_viz's whole-model topics (the latest only) and /tf (tf2's depth).
+LATCHED_QOS = OfferedQos('reliable', 'transient_local', depth=1)
+TF_QOS = OfferedQos('reliable', 'volatile', depth=100)
 
 OUT_TOPICS = {
     'image': ('/keyframes/image', 'sensor_msgs/msg/Image'),
@@ -37,7 +41,25 @@ OUT_TOPICS = {
     'view': ('/novel_view/image', 'sensor_msgs/msg/Image'),
     'view_info': ('/novel_view/camera_info', 'sensor_msgs/msg/CameraInfo'),
     'view_status': ('/novel_view/status', 'diagnostic_msgs/msg/DiagnosticArray'),
+    'view_jpeg': ('/novel_view/image/compressed', 'sensor_msgs/msg/CompressedImage'),
+    # The scene_viz's topics: the model for RViz and Foxglove.
+    'tf': ('/tf', 'tf2_msgs/msg/TFMessage'),
+    'tf_static': ('/tf_static', 'tf2_msgs/msg/TFMessage'),
+    'poses': ('/keyframes/poses', 'geometry_msgs/msg/PoseArray'),
+    'frustums': ('/keyframes/frustums', 'visualization_msgs/msg/MarkerArray'),
+    'points': ('/keyframes/points', 'sensor_msgs/msg/PointCloud2'),
 }
+#: Topics recorded with :data:`LATCHED_QOS` / :data:`TF_QOS`; other ``/keyframes/`` topics with
+#: :data:`MODEL_QOS`, the rest with :data:`REPLY_QOS`.
+_LATCHED = ('/tf_static', '/keyframes/poses', '/keyframes/frustums')
+
+
+def _offered(topic: str) -> OfferedQos:
+    if topic in _LATCHED:
+        return LATCHED_QOS
+    if topic == '/tf':
+        return TF_QOS
+    return MODEL_QOS if topic.startswith('/keyframes/') else REPLY_QOS
 
 
 def write_bag(
@@ -52,21 +74,27 @@ def write_bag(
 
     Streamed: the messages of one keyframe or view at a time are converted, written and dropped
     (peak memory does not grow with the flight). ``progress('write', done, total)`` per item.
+    The scene_viz's topics (TF, keyframe poses, frustums, points) are made as the node makes them,
+    from a :class:`~ibr_ros.core.viz.VizModel` fed in the same order.
     """
     items = sorted(
         [(k.stamp, 0, i) for i, k in enumerate(keyframes)] + [(v.stamp, 1, j) for j, v in enumerate(views)]
     )
     counts: Counter = Counter()
     done = 0
+    model = VizModel(cfg.scene.viz)
     with BagWriter(path) as writer:
         for name, msgtype in OUT_TOPICS.values():
-            writer.add_topic(name, msgtype, MODEL_QOS if name.startswith('/keyframes/') else REPLY_QOS)
+            writer.add_topic(name, msgtype, _offered(name))
         for stamp, group in itertools.groupby(items, key=lambda e: e[0]):
             events: list[tuple[int, str, object]] = []
             for _, kind, i in group:
-                events += (
-                    _keyframe_events(keyframes[i]) if kind == 0 else _view_events(views[i], cfg, model_frame)
-                )
+                if kind == 0:
+                    events += _keyframe_events(keyframes[i]) + _viz_keyframe_events(model, keyframes[i])
+                else:
+                    events += _view_events(views[i], cfg, model_frame) + _viz_view_events(
+                        model, views[i], cfg
+                    )
                 done += 1
             events.sort(key=lambda e: e[0])  # stable: messages at one stamp by rank, as before streaming
             for _, key, msg in events:
@@ -108,6 +136,59 @@ def _view_events(v: NovelView, cfg: ProcessConfigs, model_frame: str) -> list[tu
     if v.status is not None:
         status = msg_utils.reply_to_diagnostics(v.status, header, name='/view_renderer', **rb)
         out.append((8, 'view_status', status))
+    return out
+
+
+def _viz_keyframe_events(model: VizModel, k: Keyframe) -> list[tuple[int, str, object]]:
+    """The scene_viz's messages for a keyframe (after the keyframe's own): the camera's TF, the
+    keyframes' static TF, poses and frustums (whole, latched) and its points once refined."""
+    if not np.all(np.isfinite(k.t_wc)):  # not registered by SfM: no pose
+        return []
+    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
+    model.put_pose(k.stamp, k.t_wc, k.pose_frame)
+    model.put_camera(k.stamp, k.camera)
+    header = msg_utils.make_header(k.stamp, model.world, **rb)
+    chain = [(k.stamp, parent, child, t) for parent, child, t in model.camera_transforms(k.t_wc)]
+    out: list[tuple[int, str, object]] = [
+        (5, 'tf', msg_utils.transforms_to_tf(chain, **rb)),
+        (5, 'tf_static', msg_utils.transforms_to_tf(model.static_transforms(), **rb)),
+        (5, 'poses', msg_utils.matrices_to_pose_array(model.poses(), header, **rb)),
+    ]
+    if k.depth is not None:
+        model.put_image(k.stamp, loaded(k.rgb))
+        model.put_depth(k.stamp, loaded(k.depth))
+        if k.confidence is not None:
+            model.put_confidence(k.stamp, loaded(k.confidence))
+        if (points := model.points(k.stamp)) is not None:
+            out.append((5, 'points', msg_utils.points_to_cloud(*points, header, **rb)))
+    frustums = msg_utils.frustums_to_marker_array(
+        model.frustum_lines(), header, width=model.line_width(), **rb
+    )
+    out.append((5, 'frustums', frustums))
+    return out
+
+
+def _viz_view_events(model: VizModel, v: NovelView, cfg: ProcessConfigs) -> list[tuple[int, str, object]]:
+    """The novel view as JPEG (the view_renderer's) and the scene_viz's novel-view frustum and TF."""
+    if v.rgb is None or v.camera is None:
+        return []
+    rb: dict[str, Flavor] = {'flavor': 'rosbags'}
+    out: list[tuple[int, str, object]] = []
+    if cfg.viewing.jpeg_quality:
+        header = msg_utils.make_header(v.stamp, cfg.viewing.frame_id, **rb)
+        jpeg = msg_utils.numpy_to_compressed_image(
+            v.rgb, quality=cfg.viewing.jpeg_quality, header=header, flavor='rosbags'
+        )
+        out.append((6, 'view_jpeg', jpeg))
+    model.set_novel_view(v.camera, v.t_wc)
+    world = model.world or 'map'
+    tf = [(v.stamp, world, cfg.scene.novel_view_frame, v.t_wc)]
+    out.append((9, 'tf', msg_utils.transforms_to_tf(tf, **rb)))
+    header = msg_utils.make_header(v.stamp, world, **rb)
+    frustums = msg_utils.frustums_to_marker_array(
+        model.frustum_lines(), header, width=model.line_width(), **rb
+    )
+    out.append((9, 'frustums', frustums))
     return out
 
 

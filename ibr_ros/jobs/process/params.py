@@ -6,7 +6,7 @@ configurations mapped from them."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
@@ -19,13 +19,14 @@ from ibr_ros.jobs.process.options import ProcessOptions
 from ibr_ros.node_config import table_of
 from ibr_ros.node_config.depth_refiner import DEPTH_REFINER
 from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
+from ibr_ros.node_config.scene_viz import SCENE_VIZ, SceneVizConfig
 from ibr_ros.node_config.view_renderer import VIEW_RENDERER, ViewRendererConfig
 
 LOG = logging.getLogger(__package__)  # ibr_ros.jobs.process, as before the split into modules
 
 
 #: The nodes whose parameters ``ibr process`` reads.
-NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer')
+NODES = ('frame_subsampler', 'depth_refiner', 'view_renderer', 'scene_viz')
 #: depth_refiner parameters ``ibr process`` sets itself: one worker, the whole flight known.
 REFINER_OFFLINE = {'num_workers': 1, 'worker_index': 0, 'refine_again': False}
 
@@ -105,7 +106,8 @@ class ProcessConfigs:
 
     ``subsampler.target_keyframes``: ``ProcessOptions``' when given (0 = the streaming selector);
     ``viewing``: the view_renderer's, with ``ProcessOptions``' width, height and hfov_deg when given;
-    ``flush``: offline the flight has ended, as live once ``keyframes/status`` says so.
+    ``flush``: offline the flight has ended, as live once ``keyframes/status`` says so; ``scene``:
+    the scene_viz's (the viewer topics of the output bag).
     """
 
     subsampler: FrameSubsamplerConfig
@@ -114,11 +116,12 @@ class ProcessConfigs:
     sfm: SfmConfig
     viewing: ViewRendererConfig
     flush: bool = True
+    scene: SceneVizConfig = field(default_factory=lambda: SCENE_VIZ.config({}))
 
 
 def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> ProcessConfigs:
     """The core configurations, built from the node parameters by the nodes' own tables."""
-    fs, dr, vr = (params[n] for n in NODES)
+    fs, dr, vr, sv = (params[n] for n in NODES)
     if o.target_keyframes is not None and o.target_keyframes < 0:
         raise UserError(
             f'target_keyframes (--target-keyframes) must be >= 0 (0 = off), got {o.target_keyframes}'
@@ -137,4 +140,5 @@ def process_configs(params: dict[str, dict[str, object]], o: ProcessOptions) -> 
         refiner=refining.refiner,
         sfm=refining.sfm,
         viewing=viewing,
+        scene=SCENE_VIZ.config(sv, where='scene_viz.'),
     )
