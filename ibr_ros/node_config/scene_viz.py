@@ -9,7 +9,15 @@ from dataclasses import dataclass
 
 from ibr_ros.core.viz import CloudConfig, FrameNames, VizConfig
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Topic,
+    Values,
+)
 
 __all__ = ['SCENE_VIZ', 'SceneVizConfig']
 
@@ -104,6 +112,7 @@ SCENE_VIZ: ParamTable[SceneVizConfig] = ParamTable(
             (0.0, 1e6),
         ),
         Param('max_keyframes', 1000, 'keyframes kept (the oldest are forgotten)', (1, 100000)),
+        DIAGNOSTICS_PERIOD,
     ),
     build=_build,
     subscribes=(
@@ -146,6 +155,38 @@ SCENE_VIZ: ParamTable[SceneVizConfig] = ParamTable(
             'sensor_msgs/PointCloud2',
             'one per refined keyframe (its stamp): x, y, z, rgb (packed float32), world frame',
             _MODEL,
+        ),
+        DIAGNOSTICS_TOPIC,
+    ),
+    diagnostics=Diagnostics(
+        inputs=(
+            'pose',
+            'camera_info',
+            'image',
+            'depth',
+            'depth/confidence',
+            'camera_pose',
+            'query',
+            'view_info',
+        ),
+        outputs=('points', 'layout', 'tf'),
+        latency='from the keyframe message that completed a cloud (usually its depth) to the cloud out',
+        reasons=(
+            ('<field>', 'a malformed message of that input (e.g. `depth`, `camera_pose`)'),
+            ('size', "a keyframe's image, depth or confidence not of its camera's size"),
+            ('model_full', 'the oldest keyframe forgotten beyond `max_keyframes`'),
+            ('view_info', 'a novel_view/camera_info without a query of its stamp'),
+            ('lost', 'messages DDS reports lost (best effort)'),
+            ('incompatible_qos', 'a publisher whose QoS cannot match'),
+        ),
+        queues=(
+            ('queries', 'novel-view queries waiting for their camera_info (bound 100, the oldest dropped)'),
+        ),
+        model=(
+            ('keyframes', 'keyframes held'),
+            ('posed', 'keyframes with a pose (on keyframes/poses, frustums, /tf_static)'),
+            ('clouds', 'keyframe clouds published (a re-refined keyframe counts again)'),
+            ('tf', '`on`, or `off` without tf2_msgs'),
         ),
     ),
 )

@@ -27,6 +27,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 import msg_utils
+from ibr_ros.core.diagnostics import Queue
 from ibr_ros.core.viz import VizModel
 from ibr_ros.node_config.scene_viz import SCENE_VIZ
 from ibr_ros.nodes.common import (
@@ -38,6 +39,7 @@ from ibr_ros.nodes.common import (
     reliable_qos,
     run_node,
     sensor_qos,
+    start_diagnostics,
     subscribe_field,
 )
 
@@ -67,6 +69,7 @@ class SceneViz(Node):
         self.pub_poses = self.create_publisher(PoseArray, 'keyframes/poses', latched_qos())
         self.pub_frustums = self.create_publisher(MarkerArray, 'keyframes/frustums', latched_qos())
         self.pub_tf = self.pub_tf_static = None
+        self.diag = start_diagnostics(self, SCENE_VIZ.diagnostics, self._diagnostics)
         if msg_utils.tf_available():
             from tf2_msgs.msg import TFMessage
 
@@ -89,19 +92,21 @@ class SceneViz(Node):
             (Image, 'depth', lambda m: np.array(msg_utils.depth_image_to_m(m))),
             (Image, 'depth/confidence', lambda m: np.array(msg_utils.image_to_confidence(m))),
         ):
-            subscribe_field(self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad)
+            subscribe_field(
+                self, msg_type, f'keyframes/{field}', qos, field, convert, self._put, self.bad, self.diag
+            )
         pose_type, to_matrix = POSE_MESSAGES[cfg.pose_type]
         subscribe_field(
             self, pose_type, 'camera/pose', sensor_qos(), 'camera_pose',
-            lambda m: (to_matrix(m), m.header.frame_id or 'map'), self._on_camera_pose, self.bad,
+            lambda m: (to_matrix(m), m.header.frame_id or 'map'), self._on_camera_pose, self.bad, self.diag,
         )  # fmt: skip
         subscribe_field(
             self, PoseStamped, 'novel_view/query', reliable_qos(MAX_QUERIES), 'query',
-            msg_utils.pose_stamped_to_matrix, self._on_query, self.bad,
+            msg_utils.pose_stamped_to_matrix, self._on_query, self.bad, self.diag,
         )  # fmt: skip
         subscribe_field(
             self, CameraInfo, 'novel_view/camera_info', reliable_qos(), 'view_info',
-            msg_utils.camera_info_to_pinhole, self._on_view_info, self.bad,
+            msg_utils.camera_info_to_pinhole, self._on_view_info, self.bad, self.diag,
         )  # fmt: skip
         c = cfg.viz
         self.get_logger().info(
@@ -110,9 +115,23 @@ class SceneViz(Node):
             f'body {c.frames.body!r}, keyframes {c.frames.keyframe_prefix!r}<stamp>_optical_frame)'
         )
 
+    def _diagnostics(self) -> dict[str, Any]:
+        """What ``/diagnostics`` reports besides the events (:func:`start_diagnostics`)."""
+        return {
+            'rejected': self.bad.counts,
+            'queues': {'queries': Queue(len(self.queries), MAX_QUERIES)},
+            'model': {
+                'keyframes': len(self.model.keyframes),
+                'posed': len(self.model.posed()),
+                'clouds': self.clouds,
+                'tf': 'on' if self.pub_tf is not None else 'off',
+            },
+        }
+
     # -- keyframes ------------------------------------------------------------------------------
     def _put(self, stamp: int, field: str, value: Any) -> None:
         m = self.model
+        self.diag.started(stamp)
         try:
             if field == 'pose':
                 if m.put_pose(stamp, *value):
@@ -157,6 +176,8 @@ class SceneViz(Node):
         self.pub_points.publish(msg_utils.points_to_cloud(*points, header))
         self.cloud_sent.add(stamp)
         self.clouds += 1
+        self.diag.published('points')
+        self.diag.finished(stamp)
         self.get_logger().info(f'keyframe {stamp} ns: {len(points[0])} points published')
 
     def _publish_layout(self, stamp: int) -> None:
@@ -165,6 +186,7 @@ class SceneViz(Node):
         header = msg_utils.make_header(stamp, m.world)
         self.pub_poses.publish(msg_utils.matrices_to_pose_array(m.poses(), header))
         self._publish_frustums(stamp)
+        self.diag.published('layout')
         if self.pub_tf_static is not None:
             self.pub_tf_static.publish(msg_utils.transforms_to_tf(m.static_transforms()))
 
@@ -182,6 +204,7 @@ class SceneViz(Node):
         t_wc, world = value
         chain = self.model.camera_transforms(t_wc, world)
         self.pub_tf.publish(msg_utils.transforms_to_tf([(stamp, p, c, t) for p, c, t in chain]))
+        self.diag.published('tf')
 
     def _on_query(self, stamp: int, field: str, t_wc: np.ndarray) -> None:
         self.queries[stamp] = t_wc

@@ -85,7 +85,7 @@ def test_every_parameter_is_described_and_numbers_have_a_range(node) -> None:
             assert p.range[0] <= p.default <= p.range[1], p.name
 
 
-@pytest.mark.parametrize('node', ['bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer'])
+@pytest.mark.parametrize('node', sorted(TABLES))
 def test_every_node_documents_its_diagnostics_and_their_period(node) -> None:
     from ibr_ros.core.diagnostics import AREAS
     from ibr_ros.node_config.table import DIAGNOSTICS_PERIOD, DIAGNOSTICS_TOPIC

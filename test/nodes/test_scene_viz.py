@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped
 from node_harness import in_process
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -53,8 +54,9 @@ def test_scene_viz_publishes_the_model_and_a_late_viewer_gets_all_of_it():
     kfs = _keyframes()
     cfg = SCENE_VIZ.config({})
     model, req = model_qos(), reliable_qos()
-    with in_process(SceneViz, feeder='viz_feeder') as h:
+    with in_process(SceneViz, feeder='viz_feeder', diagnostics_period_s=0.1) as h:
         node = h.node
+        diag = h.collect(DiagnosticArray, '/diagnostics', reliable_qos(100))
         pubs = h.publishers({
             'pose': (PoseStamped, 'keyframes/pose', model),
             'info': (CameraInfo, 'keyframes/camera_info', model),
@@ -95,6 +97,18 @@ def test_scene_viz_publishes_the_model_and_a_late_viewer_gets_all_of_it():
         poses = h.collect(PoseArray, 'keyframes/poses', latched_qos())
         frustums = h.collect(MarkerArray, 'keyframes/frustums', latched_qos())
         assert h.wait(lambda: len(clouds) == 4 and poses and frustums, 30), (len(clouds), poses, frustums)
+        want = {'depth.count': '6', 'image.count': '3', 'query.count': '1', 'view_info.count': '1'}
+
+        def report() -> dict | None:  # the newest report that counted every message sent above
+            for msg in reversed(list(diag)):
+                areas = msg_utils.diagnostics_to_areas(msg, 'scene_viz')
+                if areas and want.items() <= dict(areas['inputs'].values).items():
+                    if dict(areas['outputs'].values).get('points.count') == '4':
+                        return areas
+            return None
+
+        assert h.wait(lambda: report() is not None, 30), diag[-1:]
+        areas = report()
         tf_publishers = (node.pub_tf, node.pub_tf_static)
         if msg_utils.tf_available():  # a ROS 2 install, or tf2_msgs built by `make install`
             from tf2_msgs.msg import TFMessage
@@ -128,6 +142,11 @@ def test_scene_viz_publishes_the_model_and_a_late_viewer_gets_all_of_it():
         )
     else:  # PyPI without the built tf2_msgs: the node says so at start-up and publishes the rest
         assert tf_publishers == (None, None)
+    assert dict(areas['rejected'].values) == {'total': '1', 'size': '1'}
+    model = dict(areas['model'].values)
+    assert (model['keyframes'], model['posed'], model['clouds']) == ('3', '3', '4')
+    assert model['tf'] == ('on' if msg_utils.tf_available() else 'off')
+    assert dict(areas['outputs'].values)['latency.count'] == '4'
     by_stamp = {msg_utils.stamp_to_ns(c.header.stamp): c for c in clouds}  # the latest per keyframe
     assert sorted(by_stamp) == [k['stamp'] for k in kfs]
     for k in kfs:
