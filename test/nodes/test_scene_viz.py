@@ -102,9 +102,9 @@ def test_scene_viz_publishes_the_model_and_a_late_viewer_gets_all_of_it():
         def report() -> dict | None:  # the newest report that counted every message sent above
             for msg in reversed(list(diag)):
                 areas = msg_utils.diagnostics_to_areas(msg, 'scene_viz')
-                if areas and want.items() <= dict(areas['inputs'].values).items():
-                    if dict(areas['outputs'].values).get('points.count') == '4':
-                        return areas
+                fed = areas and want.items() <= dict(areas['inputs'].values).items()
+                if fed and dict(areas['outputs'].values).get('points.count') == '4':
+                    return areas
             return None
 
         assert h.wait(lambda: report() is not None, 30), diag[-1:]
