@@ -11,4 +11,5 @@ CONSOLE_SCRIPTS: dict[str, str] = {
     'bag_player': 'ibr_ros.nodes.bag_player:main',
     'depth_refiner': 'ibr_ros.nodes.depth_refiner:main',
     'view_renderer': 'ibr_ros.nodes.view_renderer:main',
+    'web_viewer': 'ibr_ros.nodes.web_viewer:main',
 }

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from ibr_ros.node_config.depth_refiner import DEPTH_REFINER, DepthRefinerConfig
     from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
     from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER, ViewRendererConfig, render_config
+    from ibr_ros.node_config.web_viewer import WEB_VIEWER, WebViewerConfig
 
     #: Every node's table, by node name, in the order data flows through the graph.
     TABLES: dict[str, ParamTable[Any]]
@@ -33,6 +34,7 @@ __all__ = [
     'NODES',
     'TABLES',
     'VIEW_RENDERER',
+    'WEB_VIEWER',
     'BagPlayerConfig',
     'DepthRefinerConfig',
     'FrameSubsamplerConfig',
@@ -42,12 +44,13 @@ __all__ = [
     'Value',
     'Values',
     'ViewRendererConfig',
+    'WebViewerConfig',
     'render_config',
     'table_of',
 ]
 
 #: The nodes with a parameter table, in the order data flows through the graph.
-NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer')
+NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer', 'web_viewer')
 
 #: Where each lazily imported name lives (a module of this package).
 _LAZY = {
@@ -61,6 +64,8 @@ _LAZY = {
     'ViewRendererConfig': 'view_renderer',
     'INTRINSICS': 'view_renderer',
     'render_config': 'view_renderer',
+    'WEB_VIEWER': 'web_viewer',
+    'WebViewerConfig': 'web_viewer',
 }
 
 
