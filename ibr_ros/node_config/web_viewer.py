@@ -68,7 +68,7 @@ WEB_VIEWER: ParamTable[WebViewerConfig] = ParamTable(
         Param('port', 8080, 'TCP port to serve on; 0 = any free port', (0, 65535)),
         Param('url_file', '', 'write the URL served to this file once listening (empty: no file)'),
         Param('jpeg_quality', 85, 'JPEG quality of the views sent to the page', (1, 100)),
-        Param('query_frame', 'map', "header.frame_id of the queries ('' = the renderer's model frame)"),
+        Param('query_frame', '', "header.frame_id of the queries; empty: the keyframe poses' frame"),
         Param(
             'speed_spacings_per_s',
             2.0,

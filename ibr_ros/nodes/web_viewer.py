@@ -41,6 +41,7 @@ class WebViewer(Node):
         self.bad = BadInput(self)
         self._lock = threading.Lock()
         self._ours: set[int] = set()  # stamps of this viewer's queries whose replies are awaited
+        self.model_frame = ''  # the keyframe poses' frame (queries go in it unless query_frame is set)
         self.server = ViewerServer(self.cfg, self._publish, self._forget, self.bad, self.get_logger())
         self.create_subscription(PoseStamped, 'keyframes/pose', self._on_pose, model_qos())
         self.create_subscription(Image, 'novel_view/image', self._on_image, reliable_qos())
@@ -63,9 +64,8 @@ class WebViewer(Node):
     def _publish(self, q: Query) -> None:
         with self._lock:
             self._ours.add(q.stamp)
-        self.pub.publish(
-            msg_utils.matrix_to_pose_stamped(q.t_wc, stamp_ns=q.stamp, frame_id=self.cfg.query_frame)
-        )
+        frame = self.cfg.query_frame or self.model_frame
+        self.pub.publish(msg_utils.matrix_to_pose_stamped(q.t_wc, stamp_ns=q.stamp, frame_id=frame))
 
     def _forget(self, stamp: int) -> None:
         with self._lock:
@@ -82,6 +82,12 @@ class WebViewer(Node):
         except BAD_MESSAGE as exc:
             self.bad('pose', f'keyframes/pose: {exc}')
             return
+        frame = msg.header.frame_id or 'map'
+        if self.model_frame and frame != self.model_frame:
+            self.bad('frame', f'keyframes/pose in {frame!r}, the first ones in {self.model_frame!r}: dropped')
+            return
+        self.model_frame = frame
+        self.server.frame_id = self.cfg.query_frame or frame  # what a saved view's pose says
         self.server.post(self.server.on_keyframe, msg_utils.stamp_to_ns(msg.header.stamp), t_wc)
 
     def _on_image(self, msg: Image) -> None:

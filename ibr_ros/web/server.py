@@ -145,6 +145,7 @@ class ViewerServer:
         self.owner: dict[int, _Client] = {}  # query stamp -> the page that asked
         self.replies: dict[int, Reply] = {}
         self.lost = 0
+        self.frame_id = cfg.query_frame  # of the poses (the node sets the keyframes' when it is empty)
         self._last_stamp = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
@@ -394,7 +395,7 @@ class ViewerServer:
                 raise OSError('PNG encoding failed')
             path = folder / f'view_{shown.stamp}.png'
             _atomic_write(path, png.tobytes())
-            meta = {'stamp_ns': shown.stamp, 't_wc': shown.t_wc.tolist(), 'frame_id': self.cfg.query_frame}
+            meta = {'stamp_ns': shown.stamp, 't_wc': shown.t_wc.tolist(), 'frame_id': self.frame_id}
             _atomic_write(path.with_suffix('.json'), (json.dumps(meta, indent=1) + '\n').encode())
             return str(path)
 
@@ -478,7 +479,8 @@ class ViewerServer:
         if client.timer is not None:
             client.timer.cancel()
             client.timer = None
-        self._finish(client, stamp, st.result)
+        # superseded: the renderer took another page's newer query first; ask again at once
+        self._finish(client, stamp, st.result, retry=st.reason == 'superseded')
         if st.reason == 'no_model' and client.session.in_flight is None and self._loop is not None:
             # the renderer has not got the model yet: ask again a little later (the page shows why)
             self._loop.call_later(NO_MODEL_RETRY_S, self._retry, client)
