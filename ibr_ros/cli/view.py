@@ -51,16 +51,16 @@ def run(args: argparse.Namespace) -> int:
     from ibr_ros.graph import Graph, claim_domain
     from ibr_ros.launch_entry import sigterm_as_interrupt
 
-    sigterm_as_interrupt()
-    env = dict(os.environ)
-    lock = None
-    if args.bag:
-        domain, lock = claim_domain(1 + os.getpid() % 100)
-        env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     with tempfile.TemporaryDirectory(prefix='ibr_view_') as tmp:
         url_file = Path(tmp) / 'url'
-        graph = Graph(view_nodes(args, url_file), env=env, log_dir=Path(args.logs) if args.logs else None,
-                      grace_s=10.0)  # fmt: skip
+        nodes = view_nodes(args, url_file)  # a bag without a model: UserError before anything starts
+        sigterm_as_interrupt()
+        env = dict(os.environ)
+        lock = None
+        if args.bag:
+            domain, lock = claim_domain(1 + os.getpid() % 100)
+            env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        graph = Graph(nodes, env=env, log_dir=Path(args.logs) if args.logs else None, grace_s=10.0)
         try:
             graph.start()
             while not url_file.is_file():  # the viewer writes it once it listens
