@@ -104,10 +104,13 @@ function drawMap() {
     c.beginPath(); c.arc(k.u, k.v, 4, 0, 2 * Math.PI); c.fill();
     arrow(k.u, k.v, k.heading, 10);
   }
-  if (state.header) {
-    const [u, v, heading] = state.header.map;
+  if (state.header) { // the camera; kept on the map's edge (hollow) when it flew off the map
+    const [mu, mv, heading] = state.header.map;
+    const u = Math.max(5, Math.min(mapCanvas.width - 5, mu));
+    const v = Math.max(5, Math.min(mapCanvas.height - 5, mv));
     c.strokeStyle = '#ff6b4a'; c.fillStyle = '#ff6b4a'; c.lineWidth = 2;
-    c.beginPath(); c.arc(u, v, 5, 0, 2 * Math.PI); c.fill();
+    c.beginPath(); c.arc(u, v, 5, 0, 2 * Math.PI);
+    if (u === mu && v === mv) c.fill(); else c.stroke();
     arrow(u, v, heading, 16);
   }
 }
