@@ -121,17 +121,18 @@ def test_fly_through_an_output_bag_in_chromium(repo, ros_env, python, tmp_path) 
             start = np.array(first['pose'])
             np.testing.assert_allclose(start, views[0].t_wc, atol=1e-6)  # starts at the first keyframe
 
-            # W held: the camera flies forward along its optical axis; the readout reports the rate.
+            # W held for 6 views (about 1 m a view at 3 views/s): the camera flies forward along its
+            # optical axis, staying over the model; the readout reports the rate.
             page.focus('#view')
             page.keyboard.down('w')
-            page.wait_for_function(f'window.ibrViewer.frames >= {first_count(page) + 12}', timeout=120_000)
+            page.wait_for_function(f'window.ibrViewer.frames >= {first_count(page) + 6}', timeout=120_000)
             readout = page.inner_text('#readout')
             page.keyboard.up('w')
             moved = _settled(page)
             t_wc = np.array(moved['pose'])
             step = t_wc[:3, 3] - start[:3, 3]
             assert step @ start[:3, 2] > 0.5
-            assert np.linalg.norm(np.cross(step, start[:3, 2])) < 1e-6 * 1e3
+            assert np.linalg.norm(np.cross(step, start[:3, 2])) < 1e-3  # along the optical axis
             m = re.match(r'([\d.]+) views/s \| latency (\d+) ms \| 640x360', readout)
             assert m is not None, readout
             assert float(m.group(1)) > 0
