@@ -12,7 +12,7 @@ export AMENT_PREFIX_PATH := $(abspath $(VENV))$(if $(AMENT_PREFIX_PATH),:$(AMENT
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: all venv install demo test test-fast lint bench lock clean
+.PHONY: all venv install demo test test-fast lint bench lock clean chromium
 
 all: install
 
@@ -47,8 +47,15 @@ demo: install
 	$(BIN)/ibr demo
 
 # CI (.ci/run) runs this: the lint first, then every test.
-test: install lint
+test: install lint chromium
 	$(BIN)/python -m pytest -q test
+
+# The web viewer's browser test drives Debian's chromium headless (Playwright, no browser download):
+# installed with apt-get when missing and run as root; without it that test skips, saying why.
+chromium:
+	@[ -x /usr/bin/chromium ] || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null \
+	  && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; } \
+	  || echo "note: /usr/bin/chromium missing and not installable here (needs root and apt-get)"
 
 # The unit tests alone (no DDS, no end-to-end job): a couple of minutes.
 test-fast: install

@@ -49,7 +49,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*', 'bench', 'tools']),
-    package_data={PACKAGE: ['models/*.onnx', 'models/*.json']},
+    package_data={PACKAGE: ['models/*.onnx', 'models/*.json', 'web/static/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml', 'LICENSE']),

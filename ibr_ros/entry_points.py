@@ -12,4 +12,5 @@ CONSOLE_SCRIPTS: dict[str, str] = {
     'depth_refiner': 'ibr_ros.nodes.depth_refiner:main',
     'view_renderer': 'ibr_ros.nodes.view_renderer:main',
     'scene_viz': 'ibr_ros.nodes.scene_viz:main',
+    'web_viewer': 'ibr_ros.nodes.web_viewer:main',
 }

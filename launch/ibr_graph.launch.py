@@ -6,7 +6,8 @@ Arguments: ``bag`` (path; empty = no bag_player, feed live topics), ``rate`` (re
 fast as possible: nothing is lost, the player waits for the frame_subsampler), ``refiners`` (sharded
 depth_refiner processes), ``image_transport`` (``auto`` / ``raw`` / ``compressed``), ``pose_source``
 (``auto`` / ``topic`` / ``none``), ``scene_depth_m`` (0 = estimate), ``max_neighbours`` (MVS
-source views), ``config_dir`` (parameter files, default: the installed share/ibr_ros/config). The
+source views), ``config_dir`` (parameter files, default: the installed share/ibr_ros/config),
+``viewer`` (``true``: also the web_viewer, a browser page to fly through the model). The
 bag_player starts playing once the frame_subsampler subscribes the bag's camera topics. ``ibr graph``
 starts the same processes where ``ros2 launch`` is missing.
 """
@@ -27,6 +28,7 @@ ARGUMENTS = {
     'pose_source': ('auto', "frame_subsampler poses: 'auto', 'topic' or 'none' (SfM)"),
     'scene_depth_m': ('0.0', 'typical scene depth (m) for keyframe spacing and MVS; 0 = estimate'),
     'max_neighbours': ('4', 'MVS source views per keyframe'),
+    'viewer': ('false', 'also start the web_viewer (fly through the model in a browser)'),
 }
 
 
@@ -77,6 +79,11 @@ def _nodes(context, *args, **kwargs):
         Node(package='ibr_ros', executable='scene_viz', name='scene_viz',
              parameters=params('scene_viz'), output='screen')
     )  # fmt: skip
+    if arg['viewer'].lower() in ('true', '1'):
+        actions.append(
+            Node(package='ibr_ros', executable='web_viewer', name='web_viewer',
+                 parameters=params('web_viewer'), output='screen')
+        )  # fmt: skip
     return actions
 
 

@@ -24,6 +24,7 @@ SUBCOMMAND_MODULES = (
     'ibr_ros.cli.eval',
     'ibr_ros.cli.graph',
     'ibr_ros.cli.query',
+    'ibr_ros.cli.view',
     'ibr_ros.cli.models',
     'ibr_ros.cli.demo',
     'ibr_ros.cli.process',

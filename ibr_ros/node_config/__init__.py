@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER, FrameSubsamplerConfig
     from ibr_ros.node_config.scene_viz import SCENE_VIZ, SceneVizConfig
     from ibr_ros.node_config.view_renderer import INTRINSICS, VIEW_RENDERER, ViewRendererConfig, render_config
+    from ibr_ros.node_config.web_viewer import WEB_VIEWER, WebViewerConfig
 
     #: Every node's table, by node name, in the order data flows through the graph.
     TABLES: dict[str, ParamTable[Any]]
@@ -35,6 +36,7 @@ __all__ = [
     'SCENE_VIZ',
     'TABLES',
     'VIEW_RENDERER',
+    'WEB_VIEWER',
     'BagPlayerConfig',
     'DepthRefinerConfig',
     'FrameSubsamplerConfig',
@@ -45,12 +47,13 @@ __all__ = [
     'Value',
     'Values',
     'ViewRendererConfig',
+    'WebViewerConfig',
     'render_config',
     'table_of',
 ]
 
 #: The nodes with a parameter table, in the order data flows through the graph.
-NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer', 'scene_viz')
+NODES = ('bag_player', 'frame_subsampler', 'depth_refiner', 'view_renderer', 'scene_viz', 'web_viewer')
 
 #: Where each lazily imported name lives (a module of this package).
 _LAZY = {
@@ -66,6 +69,8 @@ _LAZY = {
     'SCENE_VIZ': 'scene_viz',
     'SceneVizConfig': 'scene_viz',
     'render_config': 'view_renderer',
+    'WEB_VIEWER': 'web_viewer',
+    'WebViewerConfig': 'web_viewer',
 }
 
 
