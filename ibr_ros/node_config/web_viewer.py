@@ -7,7 +7,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ibr_ros.errors import UserError
-from ibr_ros.node_config.table import Param, ParamTable, Topic, Values
+from ibr_ros.node_config.table import (
+    DIAGNOSTICS_PERIOD,
+    DIAGNOSTICS_TOPIC,
+    Diagnostics,
+    Param,
+    ParamTable,
+    Topic,
+    Values,
+)
 
 __all__ = ['WEB_VIEWER', 'WebViewerConfig']
 
@@ -93,6 +101,7 @@ WEB_VIEWER: ParamTable[WebViewerConfig] = ParamTable(
             (0.0, 1e6),
         ),
         Param('save_dir', 'ibr_views', 'folder where the save button writes view_<stamp>.png and .json'),
+        DIAGNOSTICS_PERIOD,
     ),
     build=_build,
     subscribes=(
@@ -116,6 +125,28 @@ WEB_VIEWER: ParamTable[WebViewerConfig] = ParamTable(
             'geometry_msgs/PoseStamped',
             'camera-to-world optical-frame pose of the view wanted, a unique stamp per query',
             'reliable',
+        ),
+        DIAGNOSTICS_TOPIC,
+    ),
+    diagnostics=Diagnostics(
+        inputs=('pose', 'image', 'status'),
+        outputs=('query', 'view'),
+        latency="from a page's query published to its view received from the renderer (the round trip)",
+        reasons=(
+            ('pose', 'a malformed keyframe pose'),
+            ('frame', "a keyframe pose in another frame than the first ones'"),
+            ('image', 'a malformed novel view of this viewer'),
+            ('jpeg', 'a view that could not be JPEG-encoded'),
+            ('status', 'a malformed novel_view/status'),
+            ('origin', 'a WebSocket from another site (refused, 403)'),
+            ('page_input', 'a malformed message from the page'),
+            ('save', 'a view that could not be saved'),
+        ),
+        queues=(('in_flight', 'queries awaiting their reply (at most one per page; bound: the pages)'),),
+        model=(
+            ('keyframes', 'keyframe poses on the map'),
+            ('pages', 'pages connected'),
+            ('lost', 'queries given up after `reply_timeout_s` without a reply'),
         ),
     ),
 )

@@ -17,6 +17,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -26,9 +27,18 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 import msg_utils
+from ibr_ros.core.diagnostics import Queue
 from ibr_ros.core.navigation import Query
 from ibr_ros.node_config.web_viewer import WEB_VIEWER
-from ibr_ros.nodes.common import BAD_MESSAGE, BadInput, declare_table, model_qos, reliable_qos, run_node
+from ibr_ros.nodes.common import (
+    BAD_MESSAGE,
+    BadInput,
+    declare_table,
+    model_qos,
+    reliable_qos,
+    run_node,
+    start_diagnostics,
+)
 from ibr_ros.web import ViewerServer
 
 
@@ -47,6 +57,7 @@ class WebViewer(Node):
         self.create_subscription(Image, 'novel_view/image', self._on_image, reliable_qos())
         self.create_subscription(DiagnosticArray, 'novel_view/status', self._on_status, reliable_qos(100))
         self.pub = self.create_publisher(PoseStamped, 'novel_view/query', reliable_qos())
+        self.diag = start_diagnostics(self, WEB_VIEWER.diagnostics, self._diagnostics)
         url = self.server.start()
         if self.cfg.url_file:
             path = Path(self.cfg.url_file)
@@ -55,6 +66,17 @@ class WebViewer(Node):
                 f.write(url + '\n')
             os.replace(tmp, path)
         self.get_logger().info(f'serving the viewer on {url}')
+
+    def _diagnostics(self) -> dict[str, Any]:
+        """What ``/diagnostics`` reports besides the events (:func:`start_diagnostics`)."""
+        with self._lock:
+            in_flight = len(self._ours)
+        pages = len(self.server.clients)
+        return {
+            'rejected': self.bad.counts,
+            'queues': {'in_flight': Queue(in_flight, pages)},
+            'model': {'keyframes': len(self.server.map.poses), 'pages': pages, 'lost': self.server.lost},
+        }
 
     def destroy_node(self) -> None:
         self.server.stop()
@@ -66,10 +88,13 @@ class WebViewer(Node):
             self._ours.add(q.stamp)
         frame = self.cfg.query_frame or self.model_frame
         self.pub.publish(msg_utils.matrix_to_pose_stamped(q.t_wc, stamp_ns=q.stamp, frame_id=frame))
+        self.diag.published('query')
+        self.diag.started(q.stamp)
 
     def _forget(self, stamp: int) -> None:
         with self._lock:
             self._ours.discard(stamp)
+        self.diag.discard(stamp)  # no view came (refused, superseded, given up); else already stopped
 
     def _mine(self, stamp: int) -> bool:
         with self._lock:
@@ -77,6 +102,7 @@ class WebViewer(Node):
 
     # -- the executor's thread -----------------------------------------------------------------
     def _on_pose(self, msg: PoseStamped) -> None:
+        self.diag.received('pose')
         try:
             t_wc = msg_utils.pose_stamped_to_matrix(msg)
         except BAD_MESSAGE as exc:
@@ -94,6 +120,8 @@ class WebViewer(Node):
         stamp = msg_utils.stamp_to_ns(msg.header.stamp)
         if not self._mine(stamp):
             return  # another client's view
+        self.diag.received('image')
+        self.diag.finished(stamp)
         try:
             rgb = np.array(msg_utils.image_to_rgb(msg))
         except BAD_MESSAGE as exc:
@@ -105,8 +133,10 @@ class WebViewer(Node):
             self.bad('jpeg', f'novel_view/image {stamp} ns: JPEG encoding failed')
             return
         self.server.post(self.server.on_image, stamp, jpeg.tobytes(), rgb)
+        self.diag.published('view')
 
     def _on_status(self, msg: DiagnosticArray) -> None:
+        self.diag.received('status')
         try:
             stamp, status = msg_utils.diagnostics_to_reply(msg)
         except msg_utils.MessageError as exc:
