@@ -45,7 +45,8 @@ def test_web_viewer_queries_and_reports_its_diagnostics():
         node._publish(Query(stamp, look_at([5.0, 0.0, 30.0], [5.0, 5.0, 0.0]), 1))  # as a page would
         assert h.wait(lambda: len(queries) == 1, 30)
         (q,) = queries
-        assert msg_utils.stamp_to_ns(q.header.stamp) == stamp and q.header.frame_id == 'map'
+        assert msg_utils.stamp_to_ns(q.header.stamp) == stamp
+        assert q.header.frame_id == 'map'
         header = msg_utils.make_header(stamp, 'novel_view_optical')
         h.send(pubs['image'], msg_utils.numpy_to_image(np.zeros((36, 64, 3), np.uint8), 'rgb8', header))
         status = ReplyStatus('answered', '', 1.0, 0.7, 'ok', ('1',), 12.5)
@@ -55,9 +56,9 @@ def test_web_viewer_queries_and_reports_its_diagnostics():
             for msg in reversed(list(diag)):
                 areas = msg_utils.diagnostics_to_areas(msg, 'web_viewer')
                 ins = dict(areas['inputs'].values) if areas else {}
-                if ins.get('pose.count') == '3' and ins.get('status.count') == '1':
-                    if dict(areas['outputs'].values).get('view.count') == '1':
-                        return areas
+                fed = ins.get('pose.count') == '3' and ins.get('status.count') == '1'
+                if fed and dict(areas['outputs'].values).get('view.count') == '1':
+                    return areas
             return None
 
         assert h.wait(lambda: settled() is not None, 30), diag[-1:]
