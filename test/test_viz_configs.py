@@ -50,6 +50,9 @@ def test_foxglove_layout(repo):
         if p.startswith('map!'):
             referenced.add(c['followTopic'])
     assert {'/keyframes/image', '/keyframes/depth', '/novel_view/image/compressed', '/gps/fix'} <= referenced
+    # the map follows the fixes ibr process passes through and bags made from photos carry
+    maps = [c['followTopic'] for p, c in layout['configById'].items() if p.startswith('map!')]
+    assert maps == [OUT_TOPICS['navsat'][0]] == [IMAGE_BAG_TOPICS['navsat']]
     assert referenced <= topics, referenced - topics
 
 

@@ -62,7 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--image-topic', help='camera image topic, Image or CompressedImage (default: detected)')
     p.add_argument('--info-topic', help='CameraInfo topic (default: detected)')
     p.add_argument('--pose-topic', help='PoseStamped or Odometry topic (default: detected)')
-    p.add_argument('--navsat-topic', help='NavSatFix topic for SfM mode (default: detected)')
+    p.add_argument(
+        '--navsat-topic',
+        help='NavSatFix topic: GPS for SfM mode, and passed through to the output bag as /gps/fix '
+        '(default: detected)',
+    )
     p.add_argument(
         '--sfm',
         action='store_true',
@@ -73,7 +77,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         '--gps',
         action=argparse.BooleanOptionalAction,
         default=True,
-        help='SfM mode: use NavSatFix (default: yes)',
+        help='SfM mode: align to the NavSatFix positions (default: yes); --no-gps still passes the fixes '
+        'through to the output bag',
     )
     p.add_argument(
         '--params', metavar='FILE', help='ROS 2 params file overriding config/<node>.yaml of the three nodes'

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import msg_utils
-from ibr_ros.bag import BagWriter, open_bag
+from ibr_ros.bag import TYPESTORE, BagWriter, OfferedQos, open_bag
 from ibr_ros.cli.main import main
 from ibr_ros.core.registration.sfm import umeyama
 from ibr_ros.errors import UserError
@@ -78,7 +78,9 @@ def test_output_bag_topics_counts_and_stamps(processed):
     assert answered == 3
     msgs = _messages(processed / 'bag')
     with open_bag(processed / 'bag') as reader:
-        assert {t: i.msgtype for t, i in reader.topics.items()} == dict(OUT_TOPICS.values())
+        # no NavSatFix in the input: no /gps/fix in the output (not even declared)
+        out_topics = dict(v for k, v in OUT_TOPICS.items() if k != 'navsat')
+        assert {t: i.msgtype for t, i in reader.topics.items()} == out_topics
         # recorded as the graph offers them, so bag_player replays keyframes to late-joining renderers
         durability = {t: {q.durability for q in i.offered_qos} for t, i in reader.topics.items()}
     expected = {
@@ -357,6 +359,120 @@ def test_cli_errors(flight, processed, tmp_path, capsys):
     assert 'no messages' in run(str(empty), '--out', str(tmp_path / 'o5'))
     assert 'exists already' in run(str(flight), '--out', str(processed))
     assert not (tmp_path / 'o1').exists()
+
+
+# ------------------------------------------------------------------------------------ GPS passthrough
+
+NAVSAT_IN = '/mavros/global_position/global'  # not the layout's name: renamed to /gps/fix
+NAVSATFIX = 'sensor_msgs/msg/NavSatFix'
+
+
+def _gps_fixes(start_ns: int) -> list[msg_utils.GeoFix]:
+    """Fixes in the flight's first second as a drone records them: fixes with SBAS, covariance and a
+    service, one without a fix (NaN altitude), one at a frame's stamp, the last recorded late."""
+    cov = np.diag([4.0, 4.0, 9.0])
+    fixes = [
+        msg_utils.GeoFix(
+            start_ns + 125_000_000 * i, 'gps_link', 50.8225 + 1e-5 * i, -0.1372 - 2e-5 * i, 40.0 + 0.5 * i,
+            status=1 if i % 2 else 0, covariance=cov * (i + 1), covariance_type=2, service=1,
+        )
+        for i in range(6)
+    ]  # fmt: skip
+    fixes[3] = msg_utils.GeoFix(fixes[3].stamp_ns, 'gps_link', 0.0, 0.0, float('nan'), status=-1)
+    fixes.append(msg_utils.GeoFix(start_ns + 60_000_000, 'gps_link', 50.8224, -0.1371, 39.5))
+    return fixes
+
+
+@pytest.fixture(scope='module')
+def gps_flight(flight, tmp_path_factory) -> Path:
+    """The flight with a NavSatFix topic: :func:`_gps_fixes` and one that does not convert (NaN latitude).
+
+    Every message logged at its header stamp but the last fix, recorded after the others."""
+    out = tmp_path_factory.mktemp('gps') / 'flight'
+    with open_bag(flight) as reader, BagWriter(out) as writer:
+        fixes = _gps_fixes(reader.start_ns)
+        bad = msg_utils.GeoFix(reader.start_ns + 900_000_000, 'gps_link', float('nan'), 0.0, 0.0, status=-1)
+        rows = [(m.timestamp_ns, m.topic, m.msgtype, m.rawdata) for m in reader.messages()]
+        for f in (*fixes[:-1], bad):
+            raw = TYPESTORE.serialize_cdr(msg_utils.fix_to_navsatfix(f, flavor='rosbags'), NAVSATFIX)
+            rows.append((f.stamp_ns, NAVSAT_IN, NAVSATFIX, raw))
+        rows.sort(key=lambda r: r[0])
+        late = msg_utils.fix_to_navsatfix(fixes[-1], flavor='rosbags')
+        rows.append((bad.stamp_ns + 1, NAVSAT_IN, NAVSATFIX, TYPESTORE.serialize_cdr(late, NAVSATFIX)))
+        for t, topic, msgtype, raw in rows:
+            writer.write_raw(topic, msgtype, raw, t)
+    return out
+
+
+def test_gps_fixes_pass_through_to_the_output_bag(gps_flight, params, tmp_path):
+    """Every NavSatFix that converts, as recorded (also without a fix), on the layout's /gps/fix in
+    stamp order among the other messages, readable with rosbags and the mcap reader alone."""
+    import json
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.rosbag2 import Reader
+
+    out = tmp_path / 'run'
+    assert main(['process', str(gps_flight), '--out', str(out), '--params', str(params), *RUN]) == 0
+    with open_bag(gps_flight) as reader:
+        expected = sorted(_gps_fixes(reader.start_ns), key=lambda f: f.stamp_ns)
+    summary = json.loads((out / 'summary.json').read_text())
+    assert summary['topics']['navsat'] == NAVSAT_IN
+    assert summary['sfm'] is None  # a posed bag: GPS not used, passed through all the same
+    assert summary['frames']['navsat'] == len(expected) + 1
+    assert summary['frames']['bad']['navsat'] == 1  # NaN latitude: counted, not written
+    assert 'navsat (no fix or altitude)' not in summary['frames']['bad']  # only counted for SfM
+    assert summary['output']['topics']['/gps/fix'] == len(expected) == 7
+    with open_bag(out / 'bag') as reader:
+        info = reader.topics['/gps/fix']
+        assert info.msgtype == NAVSATFIX
+        assert info.offered_qos == (OfferedQos('best_effort', 'volatile', depth=5),)
+        assert NAVSAT_IN not in reader.topics
+        rows = [(m.topic, m.timestamp_ns, m.msg) for m in reader.messages()]
+    got = [(t, msg_utils.navsatfix_to_fix(m)) for topic, t, m in rows if topic == '/gps/fix']
+    assert [f for _, f in got] == expected  # every field, NaN altitude included
+    assert [t for t, _ in got] == [f.stamp_ns for f in expected]
+    log_times = [t for _, t, _ in rows]
+    assert log_times == sorted(log_times)  # interleaved in time order with the keyframes
+    assert rows[-1][0] != '/gps/fix'  # the keyframes go on after the fixes' first second
+    at_first_frame = [topic for topic, t, _ in rows if t == expected[0].stamp_ns]
+    assert at_first_frame[-1] == '/gps/fix'  # after the messages of a keyframe at its stamp
+    with Reader(out / 'bag') as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        conn = next(c for c in reader.connections if c.topic == '/gps/fix')
+        lats = [TYPESTORE.deserialize_cdr(raw, NAVSATFIX).latitude for _, _, raw in reader.messages([conn])]
+    assert counts['/gps/fix'] == 7
+    assert lats == [f.latitude_deg for f in expected]
+    with (out / 'bag' / 'bag_0.mcap').open('rb') as f:
+        decoded = [
+            m
+            for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()
+            if c.topic == '/gps/fix'
+        ]
+    assert [(m.latitude, m.longitude, m.status.status) for m in decoded] == [
+        (f.latitude_deg, f.longitude_deg, f.status) for f in expected
+    ]
+
+
+def test_gps_read_in_every_mode_used_by_sfm_only_with_gps(gps_flight, params):
+    """The fixes are read with or without poses and with --no-gps; SfM gets the usable ones with GPS on."""
+    from ibr_ros.jobs.process.frames import subsample
+    from ibr_ros.jobs.process.params import process_configs
+
+    def run(**kw):
+        o = ProcessOptions(params=params, **kw)
+        return subsample(gps_flight, process_configs(load_params(params), o), o, None)
+
+    posed, sfm, no_gps = run(), run(sfm=True), run(sfm=True, gps=False)
+    for sub in (posed, sfm, no_gps):
+        assert len(sub.navsat) == 7
+        assert sub.topics['navsat'] == NAVSAT_IN
+        assert sub.bad['navsat'] == 1
+    assert posed.fixes == no_gps.fixes == []
+    assert len(sfm.fixes) == 6  # not the one without a fix
+    assert sfm.bad['navsat (no fix or altitude)'] == 1
+    assert 'navsat (no fix or altitude)' not in no_gps.bad
 
 
 # ------------------------------------------------------------------------------------ SfM mode

@@ -58,7 +58,12 @@ Output folder: ``bag/`` (ROS 2 mcap bag, written atomically) with the graph's to
 ``/novel_view/status`` (DiagnosticArray, as the view_renderer's: answered or refused and why, the
 valid fraction) and, for answered queries (and incomplete ones with ``publish_incomplete``),
 ``/novel_view/image`` (rgb8) + ``/novel_view/camera_info``, all with the query's stamp (the midpoint
-of its two keyframes' stamps); log time = header stamp. ``previews/*.png`` (each novel view labelled
+of its two keyframes' stamps); the scene_viz's ``/tf``, ``/tf_static``, ``/keyframes/poses``,
+``/keyframes/frustums``, ``/keyframes/points``; and, when the input has a NavSatFix topic (any name),
+every fix read from it as recorded (also those without a fix: their status says so; a message that
+does not convert is counted under ``frames.bad.navsat``) on ``/gps/fix``, the viewer layout's map
+topic, with a sensor driver's QoS, whether or not SfM used them (``gps`` / ``--no-gps`` only decide
+that); log time = header stamp. ``previews/*.png`` (each novel view labelled
 with its valid fraction); ``summary.json`` (``novel_views``: every query's status) and
 ``summary.md`` (counts, timings, seconds per keyframe, the SfM statistics, the novel views' valid
 fractions and, for a synthetic bag with ``synth.json``, depth and rephotography errors against the exact
@@ -161,7 +166,7 @@ def _process(
     stage.mkdir(parents=True)
     try:
         model_frame = str(render_info.get('model_frame', keyframes[0].pose_frame))
-        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame, progress)
+        topic_counts = write_bag(stage / 'bag', keyframes, views, cfg, model_frame, progress, sub.navsat)
         t_write = time.perf_counter()
         previews = stage / 'previews'
         previews.mkdir()
@@ -194,6 +199,7 @@ def _process(
                 'images': sub.counts['image'],
                 'camera_info': sub.counts['camera_info'],
                 'poses': sub.counts['pose'],
+                'navsat': sub.counts['navsat'],
                 'complete': sub.counts['frames'],
                 'decisions': dict(sorted(sub.decisions.items())),
                 'bad': dict(sorted(sub.bad.items())),

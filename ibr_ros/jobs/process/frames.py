@@ -72,9 +72,10 @@ class Subsampled:
     topics: dict[str, str | None]
     sfm_why: str | None = None  # why SfM mode (None: the bag's poses are used)
     poseless: bool = False  # keyframes chosen without poses (IntervalSelector)
-    fixes: list[msg_utils.GeoFix] = field(default_factory=list)
+    fixes: list[msg_utils.GeoFix] = field(default_factory=list)  # for SfM: with a fix and an altitude
     stopped: bool = False  # at max_keyframes
     selection: dict[str, object] = field(default_factory=dict)  # how the keyframes were chosen
+    navsat: list[msg_utils.GeoFix] = field(default_factory=list)  # every fix read, as recorded
 
 
 @dataclass
@@ -105,11 +106,15 @@ class _Frame:
 @dataclass
 class _Reading:
     """What one pass of :func:`_frames` counted and collected (``image_ok``: per image message, in bag
-    order, whether it decoded).
+    order, whether it decoded). ``navsat``: every NavSatFix that converts, in bag order, as recorded
+    (passed through to the output bag); ``fixes``: those usable for SfM (a fix and an altitude), only
+    with ``gps`` (SfM mode and ``ProcessOptions.gps``).
     """
 
+    gps: bool = False
     counts: Counter = field(default_factory=Counter)
     bad: Counter = field(default_factory=Counter)
+    navsat: list[msg_utils.GeoFix] = field(default_factory=list)
     fixes: list[msg_utils.GeoFix] = field(default_factory=list)
     bag_poses: dict[int, np.ndarray] = field(default_factory=dict)
     image_ok: list[bool] = field(default_factory=list)
@@ -169,6 +174,9 @@ def _frames(
                 value = (msg.header.frame_id, msg_utils.camera_info_to_pinhole(msg))
             elif field == 'navsat':
                 fix = msg_utils.navsatfix_to_fix(msg)
+                reading.navsat.append(fix)
+                if not reading.gps:
+                    continue
                 if fix.status >= 0 and math.isfinite(fix.altitude_m):  # as ibr register
                     reading.fixes.append(fix)
                 else:
@@ -203,7 +211,8 @@ def _select_topics(
     reader: BagReader, o: ProcessOptions, cfg: ProcessConfigs
 ) -> tuple[dict[str, str | None], str | None]:
     """Image, camera_info, pose and NavSatFix topics (given or detected by type) and their types, and
-    why SfM mode is used (None: it is not).
+    why SfM mode is used (None: it is not). The NavSatFix topic is read whenever there is one (its
+    fixes go to the output bag); ``ProcessOptions.gps`` only decides whether SfM uses them.
     """
     sel = detect_topics(
         reader, image=o.image_topic, camera_info=o.info_topic, pose=o.pose_topic, navsat=o.navsat_topic
@@ -244,7 +253,7 @@ def _select_topics(
         'image': sel.image,
         'camera_info': sel.camera_info,
         'pose': sel.pose,
-        'navsat': sel.navsat if why is not None and o.gps else None,
+        'navsat': sel.navsat,
         'image_type': topics[sel.image].msgtype,
         'pose_type': None if sel.pose is None else str(sel.pose_type),
     }
@@ -266,7 +275,6 @@ def subsample(
     fs = cfg.subsampler
     decisions: Counter = Counter()
     keyframes: list[Keyframe] = []
-    reading = _Reading()
 
     def keep(frame: _Frame, reason: str) -> bool:
         """Append a keyframe; True when ``max_keyframes`` are there."""
@@ -286,6 +294,7 @@ def subsample(
     stopped = False
     with open_bag(bag) as reader:
         topics, sfm_why = _select_topics(reader, o, cfg)
+        reading = _Reading(gps=sfm_why is not None and o.gps)
         poseless = topics['pose'] is None or o.sfm
         frames = _frames(reader, topics, cfg, poseless, reading, progress)
         scene_depth = fs.scene_depth_m or None
@@ -396,5 +405,6 @@ def subsample(
         names = ', '.join(str(topics[k]) for k in needed if topics[k] is not None)
         raise UserError(f'{bag}: {why} (topics {names})')
     return Subsampled(
-        keyframes, counts, bad, decisions, topics, sfm_why, poseless, reading.fixes, stopped, selection
-    )
+        keyframes, counts, bad, decisions, topics, sfm_why, poseless, reading.fixes, stopped, selection,
+        navsat=reading.navsat,
+    )  # fmt: skip

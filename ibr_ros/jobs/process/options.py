@@ -20,7 +20,8 @@ class ProcessOptions:
 
     ``image_topic``/``info_topic``/``pose_topic``/``navsat_topic``: None = detect by type.
     ``sfm``: SfM mode even for a bag with poses (they are ignored: keyframes and poses as for a bag
-    without). ``gps``: use the bag's NavSatFix positions in SfM mode. ``params``: ROS 2 params
+    without). ``gps``: use the bag's NavSatFix positions in SfM mode (its fixes are passed through to
+    the output bag's ``/gps/fix`` either way). ``params``: ROS 2 params
     file overriding ``config/<node>.yaml``. ``views``: novel views along the keyframe path.
     ``width``/``height``/``hfov_deg``: output intrinsics of the novel views (None = the
     view_renderer's parameters; those 0 = the last keyframe's). ``max_keyframes``: stop reading

@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,8 @@ REPLY_QOS = OfferedQos('reliable', 'volatile', depth=10)
 #: The scene_viz's whole-model topics (the latest only) and /tf (tf2's depth).
 LATCHED_QOS = OfferedQos('reliable', 'transient_local', depth=1)
 TF_QOS = OfferedQos('reliable', 'volatile', depth=100)
+#: The input's GPS fixes, as a sensor driver offers them (rclpy's ``qos_profile_sensor_data``).
+SENSOR_QOS = OfferedQos('best_effort', 'volatile', depth=5)
 
 OUT_TOPICS = {
     'image': ('/keyframes/image', 'sensor_msgs/msg/Image'),
@@ -48,6 +51,9 @@ OUT_TOPICS = {
     'poses': ('/keyframes/poses', 'geometry_msgs/msg/PoseArray'),
     'frustums': ('/keyframes/frustums', 'visualization_msgs/msg/MarkerArray'),
     'points': ('/keyframes/points', 'sensor_msgs/msg/PointCloud2'),
+    # The input's NavSatFix topic (whatever its name), passed through for the layout's map panel;
+    # only in a bag whose input had one.
+    'navsat': ('/gps/fix', 'sensor_msgs/msg/NavSatFix'),
 }
 #: Topics recorded with :data:`LATCHED_QOS` / :data:`TF_QOS`; other ``/keyframes/`` topics with
 #: :data:`MODEL_QOS`, the rest with :data:`REPLY_QOS`.
@@ -55,6 +61,8 @@ _LATCHED = ('/tf_static', '/keyframes/poses', '/keyframes/frustums')
 
 
 def _offered(topic: str) -> OfferedQos:
+    if topic == OUT_TOPICS['navsat'][0]:
+        return SENSOR_QOS
     if topic in _LATCHED:
         return LATCHED_QOS
     if topic == '/tf':
@@ -69,40 +77,53 @@ def write_bag(
     cfg: ProcessConfigs,
     model_frame: str,
     progress: Progress | None = None,
+    fixes: Sequence[msg_utils.GeoFix] = (),
 ) -> dict[str, int]:
-    """The output bag (a new ``path``), every message logged at its header stamp, in time order.
+    """The output bag (a new ``path``), every message logged at its header stamp, in time order;
+    returns the message count per topic.
 
     Streamed: the messages of one keyframe or view at a time are converted, written and dropped
-    (peak memory does not grow with the flight). ``progress('write', done, total)`` per item.
+    (peak memory does not grow with the flight). ``progress('write', done, total)`` per keyframe or view.
     The scene_viz's topics (TF, keyframe poses, frustums, points) are made as the node makes them,
-    from a :class:`~ibr_ros.core.viz.VizModel` fed in the same order.
+    from a :class:`~ibr_ros.core.viz.VizModel` fed in the same order. ``fixes``: the input's GPS
+    fixes as recorded (also without a fix: the status says so), written to ``/gps/fix`` in stamp
+    order (recorded order at equal stamps) among the other messages, after them at equal stamps; the
+    topic is only declared (and counted) with fixes.
     """
     items = sorted(
-        [(k.stamp, 0, i) for i, k in enumerate(keyframes)] + [(v.stamp, 1, j) for j, v in enumerate(views)]
+        [(k.stamp, 0, i) for i, k in enumerate(keyframes)]
+        + [(v.stamp, 1, j) for j, v in enumerate(views)]
+        + [(f.stamp_ns, 2, n) for n, f in enumerate(fixes)]
     )
+    total = len(keyframes) + len(views)
     counts: Counter = Counter()
     done = 0
     model = VizModel(cfg.scene.viz)
+    names = [(name, t) for key, (name, t) in OUT_TOPICS.items() if key != 'navsat' or fixes]
     with BagWriter(path) as writer:
-        for name, msgtype in OUT_TOPICS.values():
+        for name, msgtype in names:
             writer.add_topic(name, msgtype, _offered(name))
         for stamp, group in itertools.groupby(items, key=lambda e: e[0]):
             events: list[tuple[int, str, object]] = []
+            before = done
             for _, kind, i in group:
                 if kind == 0:
                     events += _keyframe_events(keyframes[i]) + _viz_keyframe_events(model, keyframes[i])
-                else:
+                elif kind == 1:
                     events += _view_events(views[i], cfg, model_frame) + _viz_view_events(
                         model, views[i], cfg
                     )
+                else:
+                    events.append((10, 'navsat', msg_utils.fix_to_navsatfix(fixes[i], flavor='rosbags')))
+                    continue
                 done += 1
             events.sort(key=lambda e: e[0])  # stable: messages at one stamp by rank, as before streaming
             for _, key, msg in events:
                 writer.write(OUT_TOPICS[key][0], msg, stamp)
                 counts[OUT_TOPICS[key][0]] += 1
-            if progress is not None:
-                progress('write', done, len(items))
-    return {name: counts[name] for name, _ in OUT_TOPICS.values()}
+            if progress is not None and done > before:  # not for a stamp with fixes only
+                progress('write', done, total)
+    return {name: counts[name] for name, _ in names}
 
 
 def _keyframe_events(k: Keyframe) -> list[tuple[int, str, object]]:
