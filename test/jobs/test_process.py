@@ -584,6 +584,11 @@ def test_sfm_brighton_beach_gps_enu(repo, tmp_path):
     assert summary['refined'] >= 3
     msgs = _messages(out / 'bag')
     assert {m.header.frame_id for _, m, _ in msgs['/keyframes/pose']} == {'map'}
+    # the flight's 18 fixes for the map panel, as recorded
+    with open_bag(repo / 'bags' / 'brighton_beach') as reader:
+        fixes = [msg_utils.navsatfix_to_fix(m.msg) for m in reader.messages(['/gps/fix'])]
+    assert [msg_utils.navsatfix_to_fix(m) for _, m, _ in msgs['/gps/fix']] == fixes
+    assert summary['output']['topics']['/gps/fix'] == len(fixes) == 18
     dropped = {int(s) for s in sfm['dropped']}
     assert not dropped & {s for s, _, _ in msgs['/keyframes/image']}
     for _, m, _ in msgs['/keyframes/pose']:
