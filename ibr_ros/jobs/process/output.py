@@ -56,7 +56,7 @@ OUT_TOPICS = {
     'navsat': ('/gps/fix', 'sensor_msgs/msg/NavSatFix'),
 }
 #: Topics recorded with :data:`LATCHED_QOS` / :data:`TF_QOS`; other ``/keyframes/`` topics with
-#: :data:`MODEL_QOS`, the rest with :data:`REPLY_QOS`.
+#: :data:`MODEL_QOS`, ``/gps/fix`` with :data:`SENSOR_QOS`, the rest with :data:`REPLY_QOS`.
 _LATCHED = ('/tf_static', '/keyframes/poses', '/keyframes/frustums')
 
 
