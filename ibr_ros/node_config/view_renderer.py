@@ -20,9 +20,9 @@ INTRINSICS = ('width', 'height', 'hfov_deg')
 _RENDER = (
     Param(
         'blend',
-        'stable',
-        "'stable' (weights g * exp(-penalty / stable_sigma_deg), continuous in the pose: no flicker "
-        "while navigating), 'ulr' (weights 1 - p / p_max), 'paper' (smallest angle penalty wins) or 'soft'",
+        'ulr',
+        "'ulr' (weights 1 - p / p_max), 'paper' (smallest angle penalty wins), 'soft' or 'stable' "
+        '(weights continuous in the pose: no flicker while navigating)',
         choices=('paper', 'soft', 'ulr', 'stable'),
     ),
     Param('stable_sigma_deg', 4.0, "blend 'stable': weights exp(-penalty / this) (deg)", (0.01, 1e3)),

@@ -15,7 +15,7 @@ pytestmark = pytest.mark.e2e
 
 
 def test_eval_path_writes_outputs_and_stable_halves_the_flicker(repo, tmp_path, capsys) -> None:
-    """Measured at this size: stable / paper 0.29 in the mean, 0.17 in the worst 1 % (bench/README.md)."""
+    """Measured at this size with stable_sigma_deg 2: stable / paper 0.29 in the mean, 0.17 worst 1 %."""
     out = tmp_path / 'path'
     args = ['eval', 'path', str(repo / 'bags' / 'synth_orbit_s0'), '--out', str(out), '--step', '10']
     args += ['--max-views', '12', '--segments', '2', '--per-segment', '12', '--size', '640x360']

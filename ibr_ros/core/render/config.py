@@ -28,7 +28,7 @@ class RenderConfig:
     """Renderer settings (angles in degrees, distances in metres, image distances in pixels).
 
     The defaults are this project's renderer: the paper's pipeline plus five additions
-    (``depth_split``, ``coverage_px``, ``depth_tolerance``, ``blend='stable'`` with the resolution term
+    (``depth_split``, ``coverage_px``, ``depth_tolerance``, ``blend='ulr'`` with the resolution term
     and ``depth_lookup_steps``; see :mod:`ibr_ros.core.render.renderer`).
     :meth:`as_paper` / :meth:`paper` switch them off: the paper exactly.
 
@@ -80,7 +80,7 @@ class RenderConfig:
             (cracks between warped superpixels) are filled from their surroundings (0: off).
     """
 
-    blend: Literal['paper', 'soft', 'ulr', 'stable'] = 'stable'
+    blend: Literal['paper', 'soft', 'ulr', 'stable'] = 'ulr'
     resolution_weight_deg: float = 40.0
     depth_split: float | None = 0.02
     depth_split_levels: int = 2

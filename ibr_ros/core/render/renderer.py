@@ -41,15 +41,14 @@ coordinates are pixels with pixel centres at integers; all cameras are undistort
    centre, evaluated once per warped superpixel; *added* (``resolution_weight_deg``): plus that many
    degrees per unit of ULR's resolution term, so a view much farther from the surface than the novel
    camera ranks lower. ``blend='paper'``: the colour of the view with the smallest penalty (ties go
-   to the nearer view). ``blend='ulr'`` (*added*): weights ``1 - p / p_max`` over the views
+   to the nearer view). ``blend='ulr'`` (*added*, default): weights ``1 - p / p_max`` over the views
    covering the pixel (the worst of them gets 0; the best always takes part), as in ULR; views whose
    weight is below ``ulr_blend_min_weight`` times the best view's are left out (fewer colour
    lookups). ``blend='soft'``: weights ``exp(-((p - p_min) / soft_sigma_deg)^2)``.
-   ``blend='stable'`` (*added*, default): weights ``g * exp(-p / stable_sigma_deg)``, ``g`` the
+   ``blend='stable'`` (*added*, for navigation): weights ``g * exp(-p / stable_sigma_deg)``, ``g`` the
    view's :func:`selection_gains` (1 inside the selection, fading to ~0 as the view's distance reaches
    that of the nearest view left out), so every view's share of a pixel is continuous in the pose:
-   no pop when the nearest 4 change, no switch of the best view (``ibr eval path`` measures the
-   flicker; numbers in ``bench/README.md``). Colours are
+   no pop when the nearest 4 change, no switch of the best view (``eval path`` measures it). Colours are
    bilinear lookups in the source image at the pre-image of the pixel, done only for the views that
    contribute. *Added* (``depth_tolerance``): the views covering the pixel vote on its surface:
    each view's superpixel depth gets the votes of the views within a factor ``1 + depth_tolerance``

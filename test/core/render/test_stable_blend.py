@@ -102,4 +102,4 @@ def test_stable_blend_is_a_config_choice() -> None:
         RenderConfig(blend='stable', stable_fade=0.0)
     with pytest.raises(ValueError, match='stable_sigma_deg'):
         RenderConfig(blend='stable', stable_sigma_deg=0.0)
-    assert (RenderConfig().blend, RenderConfig().stable_sigma_deg) == ('stable', 4.0)
+    assert (RenderConfig().blend, RenderConfig().stable_sigma_deg) == ('ulr', 4.0)
