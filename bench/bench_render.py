@@ -87,6 +87,7 @@ def main() -> int:
         'ibr (no depth lookup)': NovelViewRenderer(views, RenderConfig(depth_lookup_steps=0)),
         'ibr (lookup everywhere)': NovelViewRenderer(views, RenderConfig(depth_lookup_min_fit_px=0.0)),
         'ibr (default, all views)': NovelViewRenderer(views, RenderConfig(ulr_blend_min_weight=0.0)),
+        'ibr (blend stable)': NovelViewRenderer(views, RenderConfig(blend='stable')),
         'splat (nearest view)': SplatRenderer(views, RenderConfig()),
         'ulr': UlrRenderer(views, RenderConfig()),
     }

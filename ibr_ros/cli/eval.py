@@ -65,6 +65,36 @@ def _rephoto(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _path(args: argparse.Namespace) -> int:
+    from ibr_ros.cli.progress import progress_bar
+    from ibr_ros.errors import UserError
+    from ibr_ros.jobs.eval_path import PathEvalOptions, evaluate_path
+
+    size = None
+    if args.size:
+        try:
+            w, h = (int(v) for v in args.size.lower().split('x'))
+        except ValueError as exc:
+            raise UserError(f'--size must be WIDTHxHEIGHT, got {args.size!r}') from exc
+        size = (w, h)
+    try:
+        offset = tuple(float(v) for v in args.offset.split(','))
+    except ValueError as exc:
+        raise UserError(f'--offset must be X,Y,Z in metres, got {args.offset!r}') from exc
+    if len(offset) != 3:
+        raise UserError(f'--offset must be X,Y,Z in metres, got {args.offset!r}')
+    options = PathEvalOptions(
+        step=args.step, max_views=args.max_views, first=args.first, segments=args.segments,
+        per_segment=args.per_segment, offset_m=(offset[0], offset[1], offset[2]),
+        blends=tuple(b.strip() for b in args.blends.split(',')), depth=args.depth, size=size,
+        block_px=args.block, gif_every=args.gif_every,
+    )  # fmt: skip
+    with progress_bar('path eval', unit='pose', enabled=args.progress) as progress:
+        summary = evaluate_path(Path(args.bag), Path(args.out), options, progress)
+    print((Path(args.out) / 'path_eval.md').read_text())
+    return 1 if any(m['failed_renders'] == summary['path_frames'] for m in summary['modes'].values()) else 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser('eval', help='evaluate against ground truth or held-out photos (tables and plots)')
     ev = p.add_subparsers(dest='eval_command', metavar='EVAL_COMMAND', required=True)
@@ -142,3 +172,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     r.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bar')
     r.set_defaults(func=_rephoto)
+
+    f = ev.add_parser(
+        'path',
+        help='flicker along a smooth novel path per blend mode vs exact ground truth (synthetic bag)',
+        description='Renders a smooth path through consecutive source poses (moved off them by --offset) '
+        "with each blend mode and as exact ground truth, and measures the excess of the render's "
+        "frame-to-frame change over the ground truth's (mean and worst 1 %% of frames; Markdown, JSON, "
+        'a plot and a GIF).',
+    )
+    f.add_argument('bag', metavar='BAG', help='synthetic bag made by `ibr bag synth`')
+    f.add_argument('--out', default='out/path_eval', help='output folder (default: out/path_eval)')
+    f.add_argument('--step', type=int, default=10, help='source views: every Nth frame (default: 10)')
+    f.add_argument('--max-views', type=int, default=40, help='at most this many source views (default: 40)')
+    f.add_argument('--first', type=int, default=0, help='index of the first frame')
+    f.add_argument('--segments', type=int, default=4, help='path segments between source poses (default: 4)')
+    f.add_argument('--per-segment', type=int, default=60, help='path poses per segment (default: 60)')
+    f.add_argument(
+        '--offset',
+        default='1.5,-1.0,0.0',
+        help='path offset from the source poses, X,Y,Z m in their optical frame',
+    )
+    f.add_argument(
+        '--blends', default='paper,ulr,stable', help='blend modes, comma-separated (paper,soft,ulr,stable)'
+    )
+    f.add_argument('--depth', choices=('gt', 'fused'), default='gt', help='source depth (default: gt)')
+    f.add_argument('--size', help="render size WIDTHxHEIGHT (default: the bag's)")
+    f.add_argument(
+        '--block', type=int, default=16, help='flicker block size in px (default: 16; 1 = per pixel)'
+    )
+    f.add_argument(
+        '--gif-every', type=int, default=3, help='every Nth path pose into path.gif (default: 3; 0: no GIF)'
+    )
+    f.add_argument('--progress', action=argparse.BooleanOptionalAction, default=None, help='progress bar')
+    f.set_defaults(func=_path)

@@ -29,8 +29,16 @@ _RENDER = (
     Param(
         'blend',
         'ulr',
-        "'ulr' (weights 1 - p / p_max), 'paper' (smallest angle penalty wins) or 'soft'",
-        choices=('paper', 'soft', 'ulr'),
+        "'ulr' (weights 1 - p / p_max), 'paper' (smallest angle penalty wins), 'soft' or 'stable' "
+        '(weights continuous in the pose: no flicker while navigating)',
+        choices=('paper', 'soft', 'ulr', 'stable'),
+    ),
+    Param('stable_sigma_deg', 4.0, "blend 'stable': weights exp(-penalty / this) (deg)", (0.01, 1e3)),
+    Param(
+        'stable_fade',
+        0.3,
+        "blend 'stable': a view fades out over this fraction of the distance of the nearest view left out",
+        (0.01, 1.0),
     ),
     Param('n_views', 4, 'source views per query', (1, 4)),
     Param('n_segments', 1500, 'SLIC superpixels per source view', (16, 100000)),

@@ -52,7 +52,7 @@ def test_zero_switches_the_additions_off_giving_the_papers_renderer() -> None:
 @pytest.mark.parametrize(
     ('values', 'match'),
     [
-        ({'blend': 'max'}, "blend must be 'paper', 'soft' or 'ulr', got 'max'"),
+        ({'blend': 'max'}, "blend must be 'paper', 'soft', 'ulr' or 'stable', got 'max'"),
         ({'n_views': 5}, 'n_views must be 1..4, got 5'),
         ({'coverage_px': -1.0}, r'coverage_px must be 0..1000, got -1.0'),
         ({'depth_tolerance': 'wide'}, "depth_tolerance must be a number .*, got 'wide'"),

@@ -7,6 +7,7 @@ renderer (the 4 nearest views, a depth test, blending); settings in :class:`Rend
 from __future__ import annotations
 
 from ibr_ros.core.render.blend import (
+    BLEND_MODES,
     bilinear,
     blend_views,
     put_rgb,
@@ -32,6 +33,7 @@ from ibr_ros.core.render.renderer import (
     Rendered,
     SourceView,
     output_camera,
+    selection_gains,
 )
 from ibr_ros.core.render.reply import (
     REFUSALS,
@@ -57,6 +59,7 @@ from ibr_ros.core.render.warp import (
 )
 
 __all__ = [
+    'BLEND_MODES',
     'PAPER_FIELDS',
     'REFUSALS',
     'NovelViewRenderer',
@@ -83,6 +86,7 @@ __all__ = [
     'relative_pose',
     'reprojection_params',
     'row_spans',
+    'selection_gains',
     'shape_coefficients',
     'shape_energy',
     'slic',

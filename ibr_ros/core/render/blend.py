@@ -11,9 +11,13 @@ from numba import njit, prange
 
 from ibr_ros.core.render.projection import refine_preimage
 
-__all__ = ['bilinear', 'blend_views', 'put_rgb']
+__all__ = ['BLEND_MODES', 'bilinear', 'blend_views', 'put_rgb']
 
 _SOFT_CUTOFF = 3.0  # blend='soft' leaves out views whose weight exp(-d^2) is below exp(-9) = 1.2e-4
+_STABLE_CUTOFF = 7.0  # blend='stable' leaves out views whose weight exp(-d) is below exp(-7) = 9e-4
+
+#: ``mode`` of :func:`blend_views`'s ``weights`` per ``RenderConfig.blend``.
+BLEND_MODES = {'paper': 0, 'soft': 1, 'ulr': 2, 'stable': 3}
 
 
 @njit(cache=True)
@@ -55,7 +59,7 @@ def _same_surface(za, zb, tol):
 
 
 @njit(cache=True, parallel=True)
-def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, weights, lookup, out):
+def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, gain, tol, weights, lookup, out):
     """Blend the ``n <= 4`` warped views per pixel (see :mod:`ibr_ros.core.render.renderer`).
 
     ``rgbs`` / ``depths``: tuples of 4 same-typed arrays (views ``n..3`` repeat one of them), the
@@ -64,19 +68,25 @@ def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, wei
     ``pen[j, k]`` / ``zk[j, k]``: its penalty (degrees) and novel-view depth (m); ``fit[j, k]``: its
     affine fit (RMS px); ``rel[j]``: view ``j``'s
     :func:`~ibr_ros.core.render.projection.reprojection_params`; ``view_ids[j]``: its index in the
-    renderer. ``out = (rgb, valid, source, depth)`` receives :class:`Rendered`'s arrays.
+    renderer; ``gain[j]``: view ``j``'s weight factor in (0, 1] (``stable`` mode only).
+    ``out = (rgb, valid, source, depth)`` receives :class:`Rendered`'s arrays.
 
     The best view (smallest penalty) supplies ``source`` / ``depth``; the colour is the weighted
-    mean over the ``n_blend`` best views (1: the best alone, the paper), ``weights = (n_blend,
-    sigma, min_rel)``: weights ``exp(-((p - p_min) / sigma)^2)`` (views with ``(p - p_min) / sigma >
-    _SOFT_CUTOFF`` left out) for ``sigma > 0``, else ULR's ``1 - p / p_max`` (``p_max`` the largest
-    penalty among them; the best view always takes part, views below ``min_rel`` times its weight
-    are left out). ``tol >= 0``: when a strict majority of the views agree on a depth (within a
-    factor ``1 + tol``) only they take part. ``lookup = (iters, max_shift, min_fit)``: for
-    ``iters > 0`` the colour lookups of superpixels with ``fit[j, k] > min_fit`` are corrected by
+    mean of the views covering the pixel, ``weights = (mode, sigma, min_rel)`` with ``mode`` from
+    :data:`BLEND_MODES`: 0 (paper) the best view alone; 1 (soft) weights
+    ``exp(-((p - p_min) / sigma)^2)`` (views with ``(p - p_min) / sigma > _SOFT_CUTOFF`` left out);
+    2 (ulr) ULR's ``1 - p / p_max`` (``p_max`` the largest penalty among them; the best view always
+    takes part, views below ``min_rel`` times its weight are left out); 3 (stable)
+    ``gain[j] * exp(-(p - p_min) / sigma)``: normalised, the same as ``gain[j] * exp(-p / sigma)``,
+    so a view's share depends on its own penalty and gain alone and changes continuously with them
+    (views below ``exp(-_STABLE_CUTOFF)`` left out). ``tol >= 0``: when a strict majority of the
+    views agree on a depth (within a factor ``1 + tol``) only they take part.
+    ``lookup = (iters, max_shift, min_fit)``: for ``iters > 0`` the colour lookups of superpixels
+    with ``fit[j, k] > min_fit`` are corrected by
     :func:`~ibr_ros.core.render.projection.refine_preimage`.
     """
-    n_blend, sigma, min_rel = weights
+    mode, sigma, min_rel = weights
+    n_blend = 1 if mode == 0 else 4
     iters, max_shift, min_fit = lookup
     out_rgb, out_valid, out_src, out_depth = out
     h, w = out_valid.shape
@@ -139,7 +149,12 @@ def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, wei
             m = min(cnt, n_blend)
             p_max = sel_p[m - 1]
             for q in range(m):
-                if sigma > 0:
+                if mode == 3:
+                    d = (sel_p[q] - sel_p[0]) / sigma
+                    if d > _STABLE_CUTOFF:
+                        break
+                    wt = np.float32(gain[sel[q]] * math.exp(-d))
+                elif mode == 1:
                     d = (sel_p[q] - sel_p[0]) / sigma
                     if d > _SOFT_CUTOFF:
                         break

@@ -33,8 +33,11 @@ class RenderConfig:
     :meth:`as_paper` / :meth:`paper` switch them off: the paper exactly.
 
     Attributes:
-        blend: ``'paper'`` (smallest penalty wins), ``'soft'`` (Gaussian falloff of the penalty) or
-            ``'ulr'`` (weights ``1 - p / p_max`` over the views covering the pixel, as ULR).
+        blend: ``'paper'`` (smallest penalty wins), ``'soft'`` (Gaussian falloff of the penalty),
+            ``'ulr'`` (weights ``1 - p / p_max`` over the views covering the pixel, as ULR) or
+            ``'stable'`` (weights ``g * exp(-p / stable_sigma_deg)``, ``g`` a view's selection gain
+            that fades it out before it leaves the nearest ``n_views``: every weight continuous in
+            the pose, for navigation without flicker).
         resolution_weight_deg: degrees added to a view's angle penalty per unit of ULR's resolution
             term ``max(0, (|a - C_s| - |a - C_n|) / |a - C_s|)`` (0: the paper's angle only).
         depth_split, depth_split_levels, depth_split_min_px: split superpixels at depth steps larger
@@ -57,6 +60,9 @@ class RenderConfig:
             :meth:`~ibr_ros.core.render.renderer.NovelViewRenderer.distance_limit`).
         max_magnification: linear magnification above which a warped superpixel is dropped.
         soft_sigma_deg: falloff of ``blend='soft'``.
+        stable_sigma_deg, stable_fade: ``blend='stable'``: penalty falloff (degrees) and the fraction of
+            the left-out view's distance over which a selected view fades out
+            (:func:`~ibr_ros.core.render.renderer.selection_gains`).
         ulr_blend_min_weight: ``blend='ulr'`` leaves out views whose weight is below this fraction
             of the best view's (0: all).
         depth_lookup_steps, depth_lookup_max_px, depth_lookup_min_fit_px: per-pixel correction of
@@ -74,7 +80,7 @@ class RenderConfig:
             (cracks between warped superpixels) are filled from their surroundings (0: off).
     """
 
-    blend: Literal['paper', 'soft', 'ulr'] = 'ulr'
+    blend: Literal['paper', 'soft', 'ulr', 'stable'] = 'ulr'
     resolution_weight_deg: float = 40.0
     depth_split: float | None = 0.02
     depth_split_levels: int = 2
@@ -93,6 +99,8 @@ class RenderConfig:
     max_distance_m: float | None = None
     max_magnification: float = 8.0
     soft_sigma_deg: float = 2.0
+    stable_sigma_deg: float = 4.0
+    stable_fade: float = 0.3
     ulr_blend_min_weight: float = 0.3
     depth_lookup_steps: int = 2
     depth_lookup_max_px: float = 1.0
@@ -105,14 +113,17 @@ class RenderConfig:
     fill_holes_px: int = 256
 
     def __post_init__(self) -> None:
-        if self.blend not in ('paper', 'soft', 'ulr'):
-            raise ValueError(f"blend must be 'paper', 'soft' or 'ulr', got {self.blend!r}")
+        if self.blend not in ('paper', 'soft', 'ulr', 'stable'):
+            raise ValueError(f"blend must be 'paper', 'soft', 'ulr' or 'stable', got {self.blend!r}")
         if not 1 <= self.n_views <= 4:
             raise ValueError(f'n_views must be 1..4, got {self.n_views}')
-        positive = ('n_segments', 'max_cached_views', 'near', 'far_factor', 'soft_sigma_deg')
+        positive: tuple[str, ...] = ('n_segments', 'max_cached_views', 'near', 'far_factor')
+        positive += ('soft_sigma_deg', 'stable_sigma_deg')
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
+        if not 0 < self.stable_fade <= 1:
+            raise ValueError(f'stable_fade must be in (0, 1], got {self.stable_fade}')
         if not 0 <= self.ulr_blend_min_weight < 1:
             raise ValueError(f'ulr_blend_min_weight must be in [0, 1), got {self.ulr_blend_min_weight}')
         if not 0 < self.max_axis_angle_deg <= 180 or not self.max_magnification >= 1:

@@ -44,7 +44,11 @@ coordinates are pixels with pixel centres at integers; all cameras are undistort
    to the nearer view). ``blend='ulr'`` (*added*, default): weights ``1 - p / p_max`` over the views
    covering the pixel (the worst of them gets 0; the best always takes part), as in ULR; views whose
    weight is below ``ulr_blend_min_weight`` times the best view's are left out (fewer colour
-   lookups). ``blend='soft'``: weights ``exp(-((p - p_min) / soft_sigma_deg)^2)``. Colours are
+   lookups). ``blend='soft'``: weights ``exp(-((p - p_min) / soft_sigma_deg)^2)``.
+   ``blend='stable'`` (*added*, for navigation): weights ``g * exp(-p / stable_sigma_deg)``, ``g`` the
+   view's :func:`selection_gains` (1 inside the selection, fading to ~0 as the view's distance reaches
+   that of the nearest view left out), so every view's share of a pixel is continuous in the pose:
+   no pop when the nearest 4 change, no switch of the best view (``eval path`` measures it). Colours are
    bilinear lookups in the source image at the pre-image of the pixel, done only for the views that
    contribute. *Added* (``depth_tolerance``): the views covering the pixel vote on its surface:
    each view's superpixel depth gets the votes of the views within a factor ``1 + depth_tolerance``
@@ -92,14 +96,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import GeometryError, validate_pose
-from ibr_ros.core.render.blend import blend_views
+from ibr_ros.core.render.blend import BLEND_MODES, blend_views
 from ibr_ros.core.render.config import RenderConfig
 from ibr_ros.core.render.projection import reprojection_params
 from ibr_ros.core.render.raster import affine_maps, raster_views, row_spans
 from ibr_ros.core.render.superpixels import slic, split_at_depth_edges, superpixel_stats
 from ibr_ros.core.render.warp import WarpModel, prepare_warp, warp_superpixels
 
-__all__ = ['NovelViewRenderer', 'Rendered', 'SourceView', 'output_camera']
+__all__ = ['NovelViewRenderer', 'Rendered', 'SourceView', 'output_camera', 'selection_gains']
 
 
 def _four(arrays: list[NDArray]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
@@ -122,6 +126,33 @@ def output_camera(width: int, height: int, hfov_deg: float, keyframe: PinholeCam
     return PinholeCamera.from_fov(
         width or keyframe.width, height or keyframe.height, hfov_deg or keyframe.hfov_deg
     )
+
+
+#: Smallest selection gain (:func:`selection_gains`): a pixel that only a fading view covers keeps its colour.
+MIN_GAIN = 1e-3
+
+
+def selection_gains(
+    position: ArrayLike, centres: Sequence[ArrayLike], next_centre: ArrayLike | None, fade: float
+) -> NDArray[np.float32]:
+    """Weight factor of each selected view (``blend='stable'``), continuous in the query position.
+
+    ``position``: the query camera centre; ``centres``: the selected views' centres; ``next_centre``:
+    the nearest view left out (None: none is). With ``d`` a view's distance and ``d_next`` the left-out
+    view's, ``s = (d_next - d) / (fade * d_next)`` clipped to [0, 1] and the gain is the smoothstep
+    ``s^2 (3 - 2 s)`` (at least :data:`MIN_GAIN`): 1 for views well inside the selection, falling to
+    ~0 as a view's distance reaches the left-out one's, where the two swap. So a view enters and leaves
+    the blend with (near) zero weight instead of popping in, as Buehler et al.'s k-th-nearest threshold.
+    """
+    pos = np.asarray(position, np.float64)
+    d = np.array([np.linalg.norm(np.asarray(c, np.float64) - pos) for c in centres])
+    if next_centre is None:
+        return np.ones(len(d), np.float32)
+    d_next = float(np.linalg.norm(np.asarray(next_centre, np.float64) - pos))
+    if not d_next > 0:
+        return np.full(len(d), MIN_GAIN, np.float32)
+    s = np.clip((d_next - d) / (fade * d_next), 0.0, 1.0)
+    return np.maximum(s * s * (3.0 - 2.0 * s), MIN_GAIN).astype(np.float32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -589,12 +620,16 @@ class NovelViewRenderer:
         """
         cfg = self.config
         chosen: list[tuple[int, _ViewCache]] = []
+        next_view: int | None = None  # the nearest usable view left out (blend='stable')
         for i in cands:
+            if len(chosen) == cfg.n_views:
+                if cfg.blend != 'stable' or self._view_cache(i) is not None:
+                    next_view = i
+                    break
+                continue
             c = self._view_cache(i)
             if c is not None:
                 chosen.append((i, c))
-            if len(chosen) == cfg.n_views:
-                break
         if not chosen:
             return Rendered.empty(camera, 'no usable source views', self.skipped_views)
         h, w = camera.height, camera.width
@@ -671,12 +706,16 @@ class NovelViewRenderer:
         out = self._alloc(camera)
         tol = -1.0 if cfg.depth_tolerance is None else float(cfg.depth_tolerance)
         view_ids = np.array([i for i, _ in chosen], np.int16)
-        n_blend = 1 if cfg.blend == 'paper' else 4
-        sigma = cfg.soft_sigma_deg if cfg.blend == 'soft' else -1.0  # < 0: ULR weights
-        weights = (n_blend, float(sigma), float(cfg.ulr_blend_min_weight))
+        sigma = cfg.stable_sigma_deg if cfg.blend == 'stable' else cfg.soft_sigma_deg
+        weights = (BLEND_MODES[cfg.blend], float(sigma), float(cfg.ulr_blend_min_weight))
+        gain = np.ones(n, np.float32)
+        if cfg.blend == 'stable':
+            centres = [self._centres[i] for i, _ in chosen]
+            far = None if next_view is None else self._centres[next_view]
+            gain[:] = selection_gains(t_wn[:3, 3], centres, far, cfg.stable_fade)
         lookup = (int(iters), float(cfg.depth_lookup_max_px), float(cfg.depth_lookup_min_fit_px))
         rgbs = _four([self.views[i].rgb for i, _ in chosen])
-        blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, tol, weights, lookup, out)
+        blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, gain, tol, weights, lookup, out)
         if cfg.fill_holes_px > 0:
             fill_small_holes(*out, max_px=cfg.fill_holes_px)
         return Rendered(*out, [i for i, _ in chosen], None, self.skipped_views)

@@ -342,7 +342,7 @@ def _blend_one_pixel(depths: list[float], tol: float | None) -> tuple[int, tuple
     tol_arg = -1.0 if tol is None else tol
     blend_views(
         tuple(rgbs), tuple(dep), n, ids, np.zeros((n, 1, 2, 3)), pen, zk, np.zeros((n, 1)), np.zeros((n, 12)),
-        np.arange(n, dtype=np.int16), tol_arg, (4, -1.0, 0.0), (0, 1.0, 0.0), out,
+        np.arange(n, dtype=np.int16), np.ones(n, np.float32), tol_arg, (2, 0.0, 0.0), (0, 1.0, 0.0), out,
     )  # fmt: skip
     return int(out[2][0, 0]), tuple(int(c) for c in out[0][0, 0])
 
@@ -376,7 +376,7 @@ def test_paper_config_switches_every_addition_off() -> None:
     for name in ('coverage_px', 'depth_split', 'depth_tolerance'):
         with pytest.raises(ValueError, match=f'{name} must be None'):
             RenderConfig(**{name: 0.0})
-    with pytest.raises(ValueError, match="blend must be 'paper', 'soft' or 'ulr'"):
+    with pytest.raises(ValueError, match="blend must be 'paper', 'soft', 'ulr' or 'stable'"):
         RenderConfig(blend='max')  # type: ignore[arg-type]
 
 
