@@ -83,7 +83,7 @@ def main() -> int:
     rates = [s['rate'] for s in samples]
     lats = [s['latency'] for s in samples if s['latency'] is not None]
     render_ms = [s['render_ms'] for s in samples]
-    renderer = NovelViewRenderer(views, VIEW_RENDERER.config({}).render)
+    renderer = NovelViewRenderer(views, VIEW_RENDERER.config({'blend': 'stable'}).render)  # ibr view's blend
     camera = output_camera(640, 360, 0.0, views[-1].camera)
     renderer.render(poses[0], camera)
     base = []

@@ -43,7 +43,7 @@ def view_nodes(args: argparse.Namespace, url_file: Path) -> list:
     player = {'bag': str(bag.resolve()), 'rate': 0.0, 'topics': topics, 'linger_s': -1.0,
               'publish_clock': False, 'wait_for_subscribers': 1, 'wait_timeout_s': 0.0,
               'wait_topics': topics[:4]}  # fmt: skip
-    renderer = {'width': args.width, 'height': args.height, 'hfov_deg': args.hfov}
+    renderer = {'width': args.width, 'height': args.height, 'hfov_deg': args.hfov, 'blend': args.blend}
     return [NodeSpec('view_renderer', renderer), NodeSpec('bag_player', player), viewer]
 
 
@@ -99,6 +99,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument('--height', type=int, default=360, help='--bag: output height (px, default 360)')
     p.add_argument('--hfov', type=float, default=0.0, help="--bag: horizontal FOV (deg; 0 = the keyframes')")
+    p.add_argument(
+        '--blend',
+        default='stable',
+        choices=('stable', 'ulr', 'soft', 'paper'),
+        help="--bag: the renderer's blend (default stable: view weights continuous in the pose, no "
+        'flicker when the nearest views change; see `ibr eval path`)',
+    )
     p.add_argument('--save-dir', default='ibr_views', help='where the save button writes (default ibr_views)')
     p.add_argument('--logs', help="write the nodes' logs into this folder instead of the terminal")
     p.set_defaults(func=run)

@@ -32,7 +32,7 @@ def test_bag_view_serves_the_model_of_an_output_bag(tmp_path) -> None:
     bag = write_model_bag(tmp_path / 'bag', model_views((64, 36))[:2])
     renderer, player, viewer = view_nodes(_args('--bag', str(bag), '--width', '320'), tmp_path / 'url')
     assert (renderer.name, player.name, viewer.name) == ('view_renderer', 'bag_player', 'web_viewer')
-    assert renderer.params == {'width': 320, 'height': 360, 'hfov_deg': 0.0}
+    assert renderer.params == {'width': 320, 'height': 360, 'hfov_deg': 0.0, 'blend': 'stable'}
     model = ['/keyframes/image', '/keyframes/camera_info', '/keyframes/pose', '/keyframes/depth']
     assert player.params['topics'] == model
     assert player.params['linger_s'] == -1.0  # a late or restarted renderer still gets the model

@@ -142,7 +142,8 @@ def test_fly_through_an_output_bag_in_chromium(repo, ros_env, python, tmp_path) 
             # The view shown is the renderer's for that pose (JPEG quality 85).
             shown = _canvas_rgb(page)
             assert shown.shape == (360, 640, 3)
-            renderer = NovelViewRenderer(views, VIEW_RENDERER.config({}).render)
+            config = VIEW_RENDERER.config({'blend': 'stable'}).render  # ibr view's blend
+            renderer = NovelViewRenderer(views, config)
             out = renderer.render(t_wc, output_camera(640, 360, 0.0, views[-1].camera))
             diff = np.abs(shown.astype(np.float32) - out.rgb.astype(np.float32))
             assert diff.mean() < 3.0, diff.mean()
