@@ -113,7 +113,11 @@ def _build(v: Values) -> DepthRefinerConfig:
             scene_depth_m=v.number('scene_depth_m'),
             near_ratio=v.number('near_ratio'),
             far_ratio=v.number('far_ratio'),
-            mvs=MvsOptions(max_neighbours=v.integer('max_neighbours')),
+            mvs=MvsOptions(
+                max_neighbours=v.integer('max_neighbours'),
+                neighbour_sources=v.integer('neighbour_sources'),
+                neighbour_roi=v.flag('neighbour_roi'),
+            ),
         )
     except ValueError as exc:  # names the parameters (ScheduleConfig's fields have their names)
         raise UserError(f'parameter {exc}') from exc
@@ -203,9 +207,29 @@ DEPTH_REFINER: ParamTable[DepthRefinerConfig] = ParamTable(
             'filter (about 1.6 sweeps per keyframe instead of 1 + max_neighbours, ~3x faster MVS; '
             'less accurate on real photos)',
             comment="Off: each keyframe's neighbours are swept again within its job, against the views of "
-            'that job. On: their depth comes from a cache of the 48 most recent maps. Measured with '
+            'that job (with neighbour_roi only where they see the keyframe). On: their depth comes from '
+            'a cache of the 48 most recent maps. Measured with '
             '`ibr eval rephoto bags/sheffield_cross`: mean error 5.86 -> 6.04, worst 1 % 26.3 -> 29.2 '
             '(synthetic accuracy unchanged); see bench/README.md.',
+        ),
+        Param(
+            'neighbour_roi',
+            True,
+            "sweep each neighbour only over the pixels and depths where the keyframe's photometric depth "
+            "projects (its depth only confirms the keyframe's; without reuse_neighbour_depth)",
+            comment='The rest of a neighbour can confirm nothing. Measured: 0.81x the MVS work on '
+            'bags/sheffield_cross jobs (the same MVS pixels to 99 %), 0.87x the CPU on brighton_beach '
+            '(94 %), 0.97x on the synthetic orbit (its neighbours see nearly all of the keyframe); '
+            '`ibr eval rephoto` unchanged on both real captures. See bench/README.md.',
+        ),
+        Param(
+            'neighbour_sources',
+            0,
+            "source views of each neighbour's sweep: the keyframe and the best others; 0 = up to "
+            'max_neighbours of the views of its job (2: about half the MVS work, less complete)',
+            (0, 16),
+            comment='Measured on bags/sheffield_cross jobs: 2 sources give 0.49x the work and keep 89 % '
+            "of the default's MVS pixels (synthetic orbit: 0.70x, 85 %). See bench/README.md.",
         ),
         Param(
             'depth_range',

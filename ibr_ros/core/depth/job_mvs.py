@@ -12,7 +12,10 @@ keyframe over a flight instead of 5 with 4 neighbours).
 
 A neighbour's cached depth comes from other source views than the job's: an independent check,
 which on real photos keeps fewer pixels than a neighbour swept against the job's own views (so the
-cache is off by default; measurements in bench/README.md).
+cache is off by default; measurements in bench/README.md). Without the cache, a neighbour's depth
+only serves to confirm the reference's: with ``MvsOptions.neighbour_roi`` (the default) it is swept
+only over the pixel box and the depths where the reference's photometric depth projects
+(:func:`guided_roi`), and with ``MvsOptions.neighbour_sources`` against fewer views.
 Depths: float32 z-depth in metres, 0 = unknown; stamps: nanoseconds.
 """
 
@@ -34,8 +37,16 @@ from ibr_ros.core.depth.mvs import (
     mvs_depth,
     select_neighbours,
 )
+from ibr_ros.core.geometry.camera import PinholeCamera
 
-__all__ = ['FLIGHT_CAPACITY', 'PhotometricCache', 'job_depth']
+__all__ = [
+    'FLIGHT_CAPACITY',
+    'ROI_DEPTH_SLACK',
+    'ROI_MARGIN_PX',
+    'PhotometricCache',
+    'guided_roi',
+    'job_depth',
+]
 
 #: Maps a flight's cache keeps with ``reuse_neighbour_depth`` (0.9 MB each at 640x360, 3 MB at
 #: 1000x750): a keyframe's neighbours are among the most recent keyframes of a sequential flight.
@@ -109,7 +120,8 @@ def job_depth(
     ``stamps``: the views' keyframe stamps (cache keys); ``depth_range``: (near, far) of every sweep
     (m); ``probe_range``: the range whose geometric mean is the depth at which a neighbour's own
     source views (among ``views``) are chosen, default ``depth_range``. The reference is always
-    swept (its cached depth, if any, is replaced); a neighbour is swept only when ``cache`` lacks it.
+    swept (its cached depth, if any, is replaced); a neighbour is swept only when ``cache`` lacks it
+    (whole, for the cache; else over :func:`guided_roi` with ``options.neighbour_roi``).
     The result is the reference's :class:`~ibr_ros.core.depth.mvs.MvsResult` after
     :func:`~ibr_ros.core.depth.mvs.geometric_filter` against every neighbour; ``neighbours`` index
     ``views``.
@@ -131,10 +143,15 @@ def job_depth(
     poses = np.stack([v.t_wc for v in views])
     cams = [v.camera for v in views]
     depths: list[NDArray[np.float32]] = [r.photometric_depth]
+    # A neighbour's map swept over the part that sees the reference serves this job only: not with a cache.
+    guided = options.neighbour_roi and (cache is None or cache.capacity == 0)
     for k in range(1, len(views)):
         d = cache.get(stamps[k]) if cache is not None else None
         if d is None:
-            d = _photometric(k, views, poses, cams, depth_range, probe_range or depth_range, options)
+            d = _photometric(
+                k, views, poses, cams, depth_range, probe_range or depth_range, options,
+                r.photometric_depth if guided else None,
+            )  # fmt: skip
             if cache is not None:
                 cache.put(stamps[k], d)
         depths.append(d)
@@ -154,18 +171,86 @@ def _photometric(
     k: int,
     views: Sequence[MvsView],
     poses: NDArray[np.float64],
-    cams: list,
+    cams: list[PinholeCamera],
     depth_range: tuple[float, float],
     probe_range: tuple[float, float],
     options: MvsOptions,
+    ref_depth: NDArray[np.float32] | None = None,
 ) -> NDArray[np.float32]:
-    """Photometric depth of ``views[k]`` from its own pick among the other ``views`` (zeros if none)."""
+    """Photometric depth of ``views[k]`` from its own pick among the other ``views`` (zeros if none).
+
+    With ``options.neighbour_sources`` n > 0 the sources are the reference ``views[0]`` and the
+    n - 1 best others; with ``ref_depth`` (the reference's photometric depth) only the box of
+    ``views[k]`` and the planes where it projects (:func:`guided_roi`) are swept, zeros elsewhere.
+    """
     v = views[k]
+    out = np.zeros((v.camera.height, v.camera.width), np.float32)
     src = select_neighbours(k, poses, cams, depth_range=probe_range, **options.neighbour_options())
+    if options.neighbour_sources > 0:
+        src = ([0] + [j for j in src if j != 0])[: options.neighbour_sources]
     if not src:
-        return np.zeros((v.camera.height, v.camera.width), np.float32)
+        return out
+    rgb, cam, window = np.asarray(v.rgb), v.camera, None
+    x0 = y0 = 0
+    if ref_depth is not None:
+        roi = guided_roi(ref_depth, cams[0], poses[0], cam, poses[k])
+        if roi is None:
+            return out
+        (x0, y0, x1, y1), window = roi
+        if (x0, y0, x1, y1) != (0, 0, cam.width, cam.height):
+            rgb = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+            kk = cam.k.copy()
+            kk[0, 2] -= x0
+            kk[1, 2] -= y0
+            cam = PinholeCamera(x1 - x0, y1 - y0, kk)
     r = mvs_depth(
-        v.rgb, v.camera, v.t_wc, [views[j].rgb for j in src], [cams[j] for j in src], poses[src],
-        depth_range=depth_range, options=options,
+        rgb, cam, v.t_wc, [views[j].rgb for j in src], [cams[j] for j in src], poses[src],
+        depth_range=depth_range, options=options, sweep_window=window,
     )  # fmt: skip
-    return r.photometric_depth  # all zero when it failed (r.reason)
+    out[y0 : y0 + cam.height, x0 : x0 + cam.width] = r.photometric_depth  # zero when it failed
+    return out
+
+
+#: Pixels added around :func:`guided_roi`'s box (full resolution): the sweep's windows, the
+#: propagation radius and the edge trim reach this far, so depths inside the box are not cut short.
+ROI_MARGIN_PX = 24
+#: Relative slack of :func:`guided_roi`'s depth window (the geometric filter allows 1 %).
+ROI_DEPTH_SLACK = 0.02
+
+
+def guided_roi(
+    ref_depth: NDArray[np.float32],
+    ref_cam: PinholeCamera,
+    ref_pose: NDArray[np.float64],
+    cam: PinholeCamera,
+    pose: NDArray[np.float64],
+    margin: int = ROI_MARGIN_PX,
+) -> tuple[tuple[int, int, int, int], tuple[float, float]] | None:
+    """Where the view ``cam`` at ``pose`` can confirm the reference's depth ``ref_depth`` (HxW
+    metres, 0 = unknown): the pixel box ``(x0, y0, x1, y1)`` (end exclusive, even) of the known
+    reference pixels that project into it, grown by ``margin`` px, and the (near, far) z-depths (m)
+    they have there, widened by :data:`ROI_DEPTH_SLACK`. None when none projects into it.
+    """
+    step = 2 if ref_depth.size > 250_000 else 1
+    sub = ref_depth[::step, ::step]
+    v, u = np.nonzero(sub > 0)
+    if not len(u):
+        return None
+    d = sub[v, u].astype(np.float64)
+    pts = ref_cam.backproject(np.c_[u * step, v * step], d) @ ref_pose[:3, :3].T + ref_pose[:3, 3]
+    pc = (pts - pose[:3, 3]) @ pose[:3, :3]
+    z = pc[:, 2]
+    front = z > 1e-9
+    px, _ = cam.project(pc[front])
+    inside = (px[:, 0] >= -0.5) & (px[:, 0] <= cam.width - 0.5)
+    inside &= (px[:, 1] >= -0.5) & (px[:, 1] <= cam.height - 0.5)
+    if not inside.any():
+        return None
+    px, z = px[inside], z[front][inside]
+    lo = np.floor(px.min(axis=0)) - margin
+    hi = np.ceil(px.max(axis=0)) + margin + 1
+    x0, y0 = (max(0, int(c) // 2 * 2) for c in lo)
+    x1 = min(cam.width, -(-int(hi[0]) // 2) * 2)
+    y1 = min(cam.height, -(-int(hi[1]) // 2) * 2)
+    window = (float(z.min()) * (1 - ROI_DEPTH_SLACK), float(z.max()) * (1 + ROI_DEPTH_SLACK))
+    return (x0, y0, x1, y1), window

@@ -128,7 +128,11 @@ class MvsOptions:
     ``min_std`` (grey levels 0..255), ``min_margin`` (ZNCC), ``edge_trim_px`` (0 = off),
     ``edge_trim_ratio``. Neighbours: the keyword arguments of :func:`select_neighbours`
     (:meth:`neighbour_options`). Geometric filter: ``min_consistent``, ``max_reproj_px``,
-    ``max_rel_depth_err`` of :func:`geometric_filter`.
+    ``max_rel_depth_err`` of :func:`geometric_filter`. Neighbour sweeps of
+    :func:`~ibr_ros.core.depth.job_mvs.job_depth` (their depth only confirms the reference's):
+    ``neighbour_sources`` source views each, the reference and the best others (0 = up to
+    ``max_neighbours`` of the job's views, like the reference); ``neighbour_roi``: each is swept
+    only over the pixel box and the depths where the reference's photometric depth projects.
     """
 
     backend: Literal['cpu', 'colmap'] = 'cpu'
@@ -162,6 +166,8 @@ class MvsOptions:
     min_consistent: int = 2
     max_reproj_px: float = 1.0
     max_rel_depth_err: float = 0.01
+    neighbour_sources: int = 0
+    neighbour_roi: bool = True
 
     def neighbour_options(self) -> dict[str, Any]:
         """The neighbour settings as keyword arguments of :func:`select_neighbours`."""
@@ -187,6 +193,7 @@ class MvsOptions:
                 raise bad(name, '>= 1')
         for name in (
             'coarse_band',
+            'neighbour_sources',
             'propagation_radius',
             'surface_passes',
             'edge_trim_px',
@@ -709,8 +716,14 @@ def _candidates(rho_s: NDArray[np.float32], shifts: bool, radius: int) -> list[N
     return cands
 
 
-def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions):
-    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason."""
+def _sweep_and_refine(
+    ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None
+):
+    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason.
+
+    ``window``: (near, far) z-depths: only the planes of the sweep over (near, far) that lie within
+    it, and 2 more each side, are swept (``coarse_band`` 0 only).
+    """
     H, W = ref.shape
     rho_near, rho_far = 1.0 / near, 1.0 / far
     s = o.sweep_scale
@@ -753,10 +766,19 @@ def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: f
         rho_s = np.where(pos >= 0, base + (pos - band) * np.float32(step), 0.0).astype(np.float32)
         bad_s = cv2.resize(bad_t, (wc, hc), interpolation=cv2.INTER_NEAREST).astype(bool) | (pos < 0)
     else:
-        planes = rho_near + step * np.arange(n_planes)
+        k0, k1 = 0, n_planes - 1
+        if window is not None:  # planes within the window's inverse depths, 2 more each side
+            k_near = (1.0 / window[0] - rho_near) / step  # plane indices (fractional) of its ends
+            k_far = (1.0 / window[1] - rho_near) / step
+            k0 = min(max(0, math.floor(k_near) - 2), n_planes - 1)
+            k1 = max(min(n_planes - 1, math.ceil(k_far) + 2), 0)
+            if k1 - k0 < 4:  # (almost) outside the range: at least 5 planes
+                k0 = max(0, min(k0, k1 - 4, n_planes - 5))
+                k1 = min(n_planes - 1, k0 + 4)
+        planes = rho_near + step * np.arange(k0, k1 + 1)
         pos, best, second = coarse.sweep(stats_s, np.zeros(coarse.ref.shape), planes, o.window, o)
-        rho_s = np.where(pos >= 0, rho_near + pos * step, 0.0).astype(np.float32)
-        bad_s = (pos < 0.5) | (pos > n_planes - 1.5) | (best - second < o.min_margin)
+        rho_s = np.where(pos >= 0, rho_near + (pos + k0) * step, 0.0).astype(np.float32)
+        bad_s = (pos < 0.5) | (pos > len(planes) - 1.5) | (best - second < o.min_margin)
 
     # 2. propagate (at sweep_scale or full resolution), refine at full resolution
     stats = _box_stats(ref, o.refine_window // 2)
@@ -935,6 +957,7 @@ def mvs_depth(
     depth_range: tuple[float, float] | None = None,
     points_w: ArrayLike | None = None,
     options: MvsOptions | None = None,
+    sweep_window: tuple[float, float] | None = None,
 ) -> MvsResult:
     """Photometric depth of the reference view from its source views (see the module docstring).
 
@@ -942,7 +965,10 @@ def mvs_depth(
     derive it with :func:`depth_range_from_points`. ``src_cams`` is one camera for all sources or
     one per source. The result's ``depth`` equals its ``photometric_depth`` (no geometric filter)
     and ``neighbours`` lists the sources that overlap the reference. An all-zero result carries a
-    ``reason`` (``REASON_*``); bad arguments raise ValueError naming them.
+    ``reason`` (``REASON_*``); bad arguments raise ValueError naming them. ``sweep_window`` (near,
+    far) z-depths (m): only the planes of the sweep over the depth range that lie within it (and 2
+    more each side) are swept; pixels whose best plane is at its ends are rejected (out of the
+    window). Ignored with ``coarse_band`` > 0.
     """
     o = options or MvsOptions()
     ref_cam = check_camera('ref_cam', ref_cam)
@@ -979,8 +1005,9 @@ def mvs_depth(
     if not keep:
         return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
     out = _sweep_and_refine(
-        ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o
-    )
+        ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o,
+        sweep_window,
+    )  # fmt: skip
     if isinstance(out, str):
         return _empty(ref.shape, out, keep, (near, far))
     depth, conf, n_planes = out

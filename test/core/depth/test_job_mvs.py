@@ -4,16 +4,21 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import cv2
 import numpy as np
 import pytest
 
-from ibr_ros.core.depth import job_mvs
-from ibr_ros.core.depth.job_mvs import PhotometricCache, job_depth
-from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
+from ibr_ros.core.depth import job_mvs, mvs
+from ibr_ros.core.depth.job_mvs import ROI_MARGIN_PX, PhotometricCache, guided_roi, job_depth
+from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.depth.schedule import RefineScheduler, ScheduleConfig
+from ibr_ros.core.geometry.camera import PinholeCamera
+from ibr_ros.core.geometry.transforms import look_at
 from ibr_ros.jobs.warmup import plane_views
 
-OPTIONS = MvsOptions(max_neighbours=2)
+OPTIONS = MvsOptions(max_neighbours=2, neighbour_roi=False)  # job_depth as compute_depth_maps
 RANGE = (10.0, 60.0)
 
 
@@ -103,3 +108,140 @@ def test_it_needs_a_neighbour_and_one_stamp_per_view():
 def test_a_flight_reuses_neighbour_depth_only_when_asked():
     assert PhotometricCache.for_flight(False).capacity == 0  # the default: each job sweeps its own
     assert PhotometricCache.for_flight(True).capacity == job_mvs.FLIGHT_CAPACITY
+
+
+def _strip_views(xs: list[float], size: tuple[int, int] = (256, 192)) -> list[MvsView]:
+    """Nadir views of a random-textured plane z = 0 from 20 m up, at the x positions ``xs`` (m)."""
+    rng = np.random.default_rng(1)
+    texture = cv2.GaussianBlur(rng.integers(0, 256, (768, 768, 3), dtype=np.uint8), (0, 0), 1.0)
+    tex_to_plane = np.array([[0.1, 0.0, -38.4], [0.0, 0.1, -38.4], [0.0, 0.0, 1.0]])  # 0.1 m per texel
+    cam = PinholeCamera.from_fov(size[0], size[1], 60.0)
+    views = []
+    for x in xs:
+        t_wc = look_at([x, -2.0, 20.0], [x, 0.0, 0.0])
+        t_cw = np.linalg.inv(t_wc)
+        plane_to_img = cam.k @ np.column_stack([t_cw[:3, 0], t_cw[:3, 1], t_cw[:3, 3]])
+        rgb = cv2.warpPerspective(texture, plane_to_img @ tex_to_plane, size, flags=cv2.INTER_LINEAR)
+        views.append(MvsView(np.ascontiguousarray(rgb), cam, t_wc))
+    return views
+
+
+STRIP = (0.0, 4.0, -4.0, 8.0)  # the reference, then its neighbours
+STRIP_RANGE = (17.0, 25.0)
+STRIP_OPTIONS = MvsOptions(max_neighbours=3, neighbour_roi=False)
+
+
+def _recorded_sweeps(monkeypatch: pytest.MonkeyPatch) -> list[tuple[tuple[int, int], list[int]]]:
+    """(reference image shape, source image ids) of every mvs_depth call of job_depth."""
+    calls: list[tuple[tuple[int, int], list[int]]] = []
+    real = job_mvs.mvs_depth
+
+    def record(ref_rgb, ref_cam, ref_pose, src_rgbs, *a, **k):  # type: ignore[no-untyped-def]
+        calls.append((np.asarray(ref_rgb).shape[:2], [id(s) for s in src_rgbs]))
+        return real(ref_rgb, ref_cam, ref_pose, src_rgbs, *a, **k)
+
+    monkeypatch.setattr(job_mvs, 'mvs_depth', record)
+    return calls
+
+
+def _agreement(r, full) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """Share of ``full``'s kept pixels ``r`` keeps, and their median relative depth difference."""
+    both = (r.depth > 0) & (full.depth > 0)
+    return both.sum() / max(1, (full.depth > 0).sum()), float(
+        np.median(np.abs(r.depth[both] / full.depth[both] - 1))
+    )
+
+
+def test_neighbour_sweeps_take_the_reference_and_the_best_others(monkeypatch):
+    views = _strip_views(list(STRIP))
+    stamps = [1, 2, 3, 4]
+    calls = _recorded_sweeps(monkeypatch)
+    full = job_depth(views, stamps, STRIP_RANGE, STRIP_OPTIONS)
+    assert len(calls) == 4  # the reference and 3 neighbours
+    n_full = [len(s) for _, s in calls]
+    assert n_full[0] == 3
+    assert min(n_full[1:]) >= 2
+    for sources in (1, 2):
+        calls.clear()
+        r = job_depth(views, stamps, STRIP_RANGE, replace(STRIP_OPTIONS, neighbour_sources=sources))
+        assert len(calls) == 4
+        assert len(calls[0][1]) == 3  # the reference's own sweep is unchanged
+        for (_, src), n in zip(calls[1:], n_full[1:], strict=True):
+            assert len(src) == min(sources, n)
+            assert src[0] == id(views[0].rgb)  # the reference comes first
+        kept, err = _agreement(r, full)
+        assert kept > 0.5, sources
+        assert err < 0.005, sources
+
+
+def _plane_depth(view: MvsView) -> np.ndarray:
+    """z-depth (m) of the plane z = 0 at every pixel of ``view``."""
+    cam, t = view.camera, view.t_wc
+    u, v = np.meshgrid(np.arange(cam.width), np.arange(cam.height))
+    rays = np.linalg.inv(cam.k) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    z = -t[2, 3] / (t[2, :3] @ rays)
+    return z.reshape(cam.height, cam.width).astype(np.float32)
+
+
+def test_neighbour_sweeps_cover_only_what_sees_the_reference_depth(monkeypatch):
+    views = _strip_views(list(STRIP))
+    cam = views[0].camera
+    truth = _plane_depth(views[0])
+    roi = guided_roi(truth, cam, views[0].t_wc, cam, views[3].t_wc)
+    assert roi is not None
+    (x0, y0, x1, y1), (near, far) = roi
+    assert (x0, y0, y1) == (0, 0, cam.height)  # the reference lies to its left: the right is cut
+    assert x1 < 0.85 * cam.width
+    assert all(v % 2 == 0 for v in roi[0])
+    seen = _plane_depth(views[3])[:, : x1 - ROI_MARGIN_PX]
+    assert near < seen.min()
+    assert far > seen.max()
+    assert STRIP_RANGE[0] < near < far < STRIP_RANGE[1]
+    assert guided_roi(truth, cam, views[0].t_wc, cam, views[0].t_wc)[0] == (0, 0, cam.width, cam.height)
+    far_away = views[0].t_wc.copy()
+    far_away[0, 3] += 200.0
+    assert guided_roi(truth, cam, views[0].t_wc, cam, far_away) is None
+    assert guided_roi(np.zeros_like(truth), cam, views[0].t_wc, cam, views[3].t_wc) is None
+
+    stamps = [1, 2, 3, 4]
+    full = job_depth(views, stamps, STRIP_RANGE, STRIP_OPTIONS)
+    calls = _recorded_sweeps(monkeypatch)
+    r = job_depth(views, stamps, STRIP_RANGE, replace(STRIP_OPTIONS, neighbour_roi=True))
+    assert calls[0][0] == (cam.height, cam.width)
+    assert calls[3][0][1] < 0.85 * cam.width  # the farthest neighbour, cropped
+    swept = sum(s[0] * s[1] for s, _ in calls[1:])
+    assert swept < 0.95 * 3 * cam.height * cam.width
+    kept, err = _agreement(r, full)
+    assert kept > 0.97
+    assert err < 0.002
+    assert (r.depth > 0).sum() < 1.03 * (full.depth > 0).sum()
+    calls.clear()
+    cache = PhotometricCache()  # reuse_neighbour_depth: whole maps, for the later jobs too
+    job_depth(views, stamps, STRIP_RANGE, replace(STRIP_OPTIONS, neighbour_roi=True), cache=cache)
+    assert [s for s, _ in calls] == [(cam.height, cam.width)] * 4
+    assert len(cache) == 4
+
+
+def test_a_sweep_window_sweeps_only_the_planes_within_it(monkeypatch):
+    views = plane_views()
+    hypotheses: list[int] = []
+    real = mvs._Stack.sweep
+
+    def count(self, stats, base, offsets, *a):  # type: ignore[no-untyped-def]
+        hypotheses.append(np.asarray(offsets).size)
+        return real(self, stats, base, offsets, *a)
+
+    monkeypatch.setattr(mvs._Stack, 'sweep', count)
+    ref, src = views[0], views[1:]
+    args = (ref.rgb, ref.camera, ref.t_wc, [v.rgb for v in src], ref.camera, np.stack([v.t_wc for v in src]))
+    full = mvs.mvs_depth(*args, depth_range=RANGE, options=OPTIONS)
+    n_full = hypotheses[0]
+    hypotheses.clear()
+    near, far = 17.0, 26.0  # the plane lies 19-24 m away
+    win = mvs.mvs_depth(*args, depth_range=RANGE, options=OPTIONS, sweep_window=(near, far))
+    assert hypotheses[0] < 0.5 * n_full
+    both = (full.depth > 0) & (win.depth > 0)
+    assert both.sum() > 0.95 * (full.depth > 0).sum()
+    assert np.median(np.abs(win.depth[both] / full.depth[both] - 1)) < 1e-3
+    outside = mvs.mvs_depth(*args, depth_range=RANGE, options=OPTIONS, sweep_window=(40.0, 60.0))
+    assert (outside.depth > 0).mean() < 0.05  # the best planes lie at its near end: rejected
