@@ -139,15 +139,21 @@ def test_fly_through_an_output_bag_in_chromium(repo, ros_env, python, tmp_path) 
             assert int(m.group(2)) > 0
             print(f'readout while flying: {readout}')
 
-            # The view shown is the renderer's for that pose (JPEG quality 85).
+            # The view shown is the renderer's for that pose, JPEG-encoded at quality 85 by the node:
+            # compared with the same encoding of an in-process render, only the browser's decoder
+            # differs (the JPEG error itself depends on where the flight stopped).
             shown = _canvas_rgb(page)
             assert shown.shape == (360, 640, 3)
             config = VIEW_RENDERER.config({'blend': 'stable'}).render  # ibr view's blend
             renderer = NovelViewRenderer(views, config)
             out = renderer.render(t_wc, output_camera(640, 360, 0.0, views[-1].camera))
-            diff = np.abs(shown.astype(np.float32) - out.rgb.astype(np.float32))
-            assert diff.mean() < 3.0, diff.mean()
-            assert np.percentile(diff, 99) < 40, np.percentile(diff, 99)
+            _, jpeg = cv2.imencode('.jpg', out.rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 85])
+            want = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)[..., ::-1].astype(np.float32)
+            diff = np.abs(shown.astype(np.float32) - want)
+            p99 = np.percentile(diff, 99)
+            print(f'shown vs JPEG of the in-process render: mean {diff.mean():.2f}, p99 {p99:.1f}')
+            assert diff.mean() < 0.5, diff.mean()  # 0 with Debian's chromium (libjpeg-turbo, as cv2)
+            assert p99 < 4, p99
             assert np.abs(shown.astype(np.float32) - first_rgb).mean() > 3.0  # the view changed
 
             # The arrows turn the camera about the map's up axis (z) without moving it.
