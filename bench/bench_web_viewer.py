@@ -55,6 +55,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--seconds', type=float, default=24.0, help='flying time (s)')
     p.add_argument('--leg', type=float, default=2.0, help='seconds per key of the pattern')
+    p.add_argument('--blend', default='stable', help="the renderer's blend (ibr view's default: stable)")
     a = p.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -64,7 +65,8 @@ def main() -> int:
         bag = write_model_bag(Path(tmp) / 'bag', views)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
         argv = [sys.executable, '-m', 'ibr_ros.cli.main', 'view', '--bag', str(bag), '--port', '0',
-                '--save-dir', str(Path(tmp) / 'saved'), '--logs', str(Path(tmp) / 'logs')]  # fmt: skip
+                '--save-dir', str(Path(tmp) / 'saved'), '--logs', str(Path(tmp) / 'logs'),
+                '--blend', a.blend]  # fmt: skip
         proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             assert proc.stdout is not None
@@ -83,7 +85,7 @@ def main() -> int:
     rates = [s['rate'] for s in samples]
     lats = [s['latency'] for s in samples if s['latency'] is not None]
     render_ms = [s['render_ms'] for s in samples]
-    renderer = NovelViewRenderer(views, VIEW_RENDERER.config({'blend': 'stable'}).render)  # ibr view's blend
+    renderer = NovelViewRenderer(views, VIEW_RENDERER.config({'blend': a.blend}).render)
     camera = output_camera(640, 360, 0.0, views[-1].camera)
     renderer.render(poses[0], camera)
     base = []
