@@ -213,7 +213,8 @@ VIEW_RENDERER: ParamTable[ViewRendererConfig] = ParamTable(
         Param(
             'jpeg_quality',
             90,
-            'JPEG quality of novel_view/image/compressed (for viewers over slow links); 0 = not published',
+            'JPEG quality of novel_view/image/compressed (for viewers over slow links; encoded only while '
+            'it has a subscriber); 0 = not published',
             (0, 100),
         ),
         *_RENDER,

@@ -338,7 +338,7 @@ class ViewRenderer(Node):
             return
         header = msg_utils.make_header(stamp, self.frame_id)
         self.pub_image.publish(msg_utils.numpy_to_image(out.rgb, 'rgb8', header))
-        if self.pub_jpeg is not None:
+        if self.pub_jpeg is not None and self.pub_jpeg.get_subscription_count() > 0:  # encoded on demand
             jpeg = msg_utils.numpy_to_compressed_image(out.rgb, quality=self.jpeg_quality, header=header)
             self.pub_jpeg.publish(jpeg)
         self.pub_info.publish(msg_utils.pinhole_to_camera_info(camera, header))
