@@ -8,6 +8,7 @@ import itertools
 import math
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -108,7 +109,8 @@ def write_bag(
             before = done
             for _, kind, i in group:
                 if kind == 0:
-                    events += _keyframe_events(keyframes[i]) + _viz_keyframe_events(model, keyframes[i])
+                    k = _in_memory(keyframes[i])  # a spilled keyframe read once for both
+                    events += _keyframe_events(k) + _viz_keyframe_events(model, k)
                 elif kind == 1:
                     events += _view_events(views[i], cfg, model_frame) + _viz_view_events(
                         model, views[i], cfg
@@ -126,21 +128,28 @@ def write_bag(
     return {name: counts[name] for name, _ in names}
 
 
+def _in_memory(k: Keyframe) -> Keyframe:
+    """``k`` with its image, depth and confidence read from their spill files (:func:`loaded`)."""
+    depth = None if k.depth is None else loaded(k.depth)
+    confidence = None if k.confidence is None else loaded(k.confidence)
+    return replace(k, rgb=loaded(k.rgb), depth=depth, confidence=confidence)
+
+
 def _keyframe_events(k: Keyframe) -> list[tuple[int, str, object]]:
-    """A keyframe's messages (rank at its stamp, topic key, message)."""
+    """A keyframe's messages (rank at its stamp, topic key, message); its arrays in memory."""
     rb: dict[str, Flavor] = {'flavor': 'rosbags'}
     header = msg_utils.make_header(k.stamp, k.camera_frame, **rb)
     info = msg_utils.pinhole_to_camera_info(k.camera, header, **rb)  # of the image and the depth map
     out: list[tuple[int, str, object]] = [
-        (0, 'image', msg_utils.numpy_to_image(loaded(k.rgb), 'rgb8', header, **rb)),
+        (0, 'image', msg_utils.numpy_to_image(k.rgb, 'rgb8', header, **rb)),
         (1, 'camera_info', info),
         (2, 'pose', msg_utils.matrix_to_pose_stamped(k.t_wc, stamp_ns=k.stamp, frame_id=k.pose_frame, **rb)),
     ]
     if k.depth is not None:
-        out.append((3, 'depth', msg_utils.depth_m_to_image(loaded(k.depth), header, **rb)))
+        out.append((3, 'depth', msg_utils.depth_m_to_image(k.depth, header, **rb)))
         out.append((4, 'depth_info', info))
         if k.confidence is not None:
-            out.append((4, 'confidence', msg_utils.confidence_to_image(loaded(k.confidence), header, **rb)))
+            out.append((4, 'confidence', msg_utils.confidence_to_image(k.confidence, header, **rb)))
     return out
 
 
@@ -161,8 +170,9 @@ def _view_events(v: NovelView, cfg: ProcessConfigs, model_frame: str) -> list[tu
 
 
 def _viz_keyframe_events(model: VizModel, k: Keyframe) -> list[tuple[int, str, object]]:
-    """The scene_viz's messages for a keyframe (after the keyframe's own): the camera's TF, the
-    keyframes' static TF, poses and frustums (whole, latched) and its points once refined."""
+    """The scene_viz's messages for a keyframe (after the keyframe's own; its arrays in memory): the
+    camera's TF, the keyframes' static TF, poses and frustums (whole, latched) and its points once
+    refined."""
     if not np.all(np.isfinite(k.t_wc)):  # not registered by SfM: no pose
         return []
     rb: dict[str, Flavor] = {'flavor': 'rosbags'}
@@ -176,10 +186,10 @@ def _viz_keyframe_events(model: VizModel, k: Keyframe) -> list[tuple[int, str, o
         (5, 'poses', msg_utils.matrices_to_pose_array(model.poses(), header, **rb)),
     ]
     if k.depth is not None:
-        model.put_image(k.stamp, loaded(k.rgb))
-        model.put_depth(k.stamp, loaded(k.depth))
+        model.put_image(k.stamp, k.rgb)
+        model.put_depth(k.stamp, k.depth)
         if k.confidence is not None:
-            model.put_confidence(k.stamp, loaded(k.confidence))
+            model.put_confidence(k.stamp, k.confidence)
         if (points := model.points(k.stamp)) is not None:
             out.append((5, 'points', msg_utils.points_to_cloud(*points, header, **rb)))
     frustums = msg_utils.frustums_to_marker_array(
