@@ -14,7 +14,7 @@ from ibr_ros.core.viz.frames import (
     camera_transforms,
     keyframe_frame,
 )
-from ibr_ros.core.viz.frustum import FRUSTUM_SEGMENTS, auto_frustum_depth, frustum_segments
+from ibr_ros.core.viz.frustum import FRUSTUM_SEGMENTS, auto_frustum_depth, frustum_segments, known_median
 from ibr_ros.core.viz.model import KEYFRAME_RGBA, NOVEL_VIEW_RGBA, VizConfig, VizKeyframe, VizModel
 
 __all__ = [
@@ -33,4 +33,5 @@ __all__ = [
     'grid',
     'keyframe_frame',
     'keyframe_points',
+    'known_median',
 ]

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import validate_pose
 
-__all__ = ['FRUSTUM_SEGMENTS', 'auto_frustum_depth', 'frustum_segments']
+__all__ = ['FRUSTUM_SEGMENTS', 'auto_frustum_depth', 'frustum_segments', 'known_median']
 
 #: Segments of :func:`frustum_segments`: 4 edges from the centre to the image corners, the 4 sides
 #: of the image rectangle, and a tick from the top side's middle upward (which way is up).
@@ -44,14 +44,16 @@ def frustum_segments(camera: PinholeCamera, t_wc: ArrayLike, depth_m: float) -> 
     return pts @ pose[:3, :3].T + pose[:3, 3]
 
 
-def auto_frustum_depth(depths: Iterable[ArrayLike], fraction: float = 0.15, default: float = 1.0) -> float:
-    """A frustum depth that suits the scene: ``fraction`` of the median known depth (finite, > 0)
-    over ``depths`` (HxW metres each); ``default`` when none is known."""
-    meds = []
-    for d in depths:
-        a = np.asarray(d, dtype=np.float32)
-        with np.errstate(invalid='ignore'):
-            known = a[np.isfinite(a) & (a > 0)]
-        if known.size:
-            meds.append(float(np.median(known)))
+def known_median(depth: ArrayLike) -> float | None:
+    """Median of the known depths (finite, > 0; metres) of ``depth``, None when there is none."""
+    a = np.asarray(depth, dtype=np.float32)
+    with np.errstate(invalid='ignore'):
+        known = a[np.isfinite(a) & (a > 0)]
+    return float(np.median(known)) if known.size else None
+
+
+def auto_frustum_depth(medians: Iterable[float], fraction: float = 0.15, default: float = 1.0) -> float:
+    """A frustum depth that suits the scene: ``fraction`` of the median of the keyframes' median
+    known depths (:func:`known_median`, metres); ``default`` when there is none."""
+    meds = list(medians)
     return fraction * float(np.median(meds)) if meds else default

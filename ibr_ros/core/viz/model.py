@@ -14,7 +14,7 @@ from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import validate_pose
 from ibr_ros.core.viz.cloud import CloudConfig, grid, keyframe_points
 from ibr_ros.core.viz.frames import FrameNames, camera_transforms, keyframe_frame
-from ibr_ros.core.viz.frustum import auto_frustum_depth, frustum_segments
+from ibr_ros.core.viz.frustum import auto_frustum_depth, frustum_segments, known_median
 
 __all__ = ['KEYFRAME_RGBA', 'NOVEL_VIEW_RGBA', 'VizConfig', 'VizKeyframe', 'VizModel']
 
@@ -100,10 +100,7 @@ class VizModel:
         g = grid(depth, self.config.cloud.stride)
         changed = kf.depth is None or not np.array_equal(kf.depth, g, equal_nan=True)
         kf.depth = g
-        a = np.asarray(g, dtype=np.float32)
-        with np.errstate(invalid='ignore'):
-            known = a[np.isfinite(a) & (a > 0)]
-        kf.median_depth = float(np.median(known)) if known.size else None
+        kf.median_depth = known_median(g)
         return changed
 
     def put_confidence(self, stamp: int, confidence: ArrayLike) -> bool:
@@ -131,8 +128,7 @@ class VizModel:
         """Where frustums are cut (metres): the configured depth or the automatic one."""
         if self.config.frustum_depth_m > 0:
             return self.config.frustum_depth_m
-        meds = [np.array([k.median_depth]) for k in self.keyframes.values() if k.median_depth]
-        return auto_frustum_depth(meds)
+        return auto_frustum_depth(k.median_depth for k in self.keyframes.values() if k.median_depth)
 
     def frustums(self) -> list[tuple[int, NDArray[np.float64]]]:
         """``(marker id, (9, 2, 3) world segments)`` of every keyframe with a pose and a camera."""
