@@ -62,6 +62,11 @@ def status_to_pairs(msg: Any) -> list[tuple[str, str]]:
     return [(str(kv.key), str(kv.value)) for kv in values]
 
 
+def _level(status: Any) -> int:
+    """A ``DiagnosticStatus``'s level as an int (rclpy gives one byte, rosbags an int)."""
+    return status.level[0] if isinstance(status.level, bytes) else int(status.level)
+
+
 def reply_to_diagnostics(
     status: ReplyStatus, header: Any = None, *, name: str, flavor: Flavor = 'rclpy'
 ) -> Any:
@@ -95,7 +100,7 @@ def diagnostics_to_reply(msg: Any) -> tuple[int, ReplyStatus]:
         reply = ReplyStatus.from_pairs(status_to_pairs(st), message=str(st.message))
     except ValueError as exc:
         raise MessageError(f'not a reply status: {exc}') from exc
-    level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+    level = _level(st)
     if level != LEVELS[reply.level]:
         raise MessageError(f'reply status level {level} does not match its result {reply.result!r}')
     return stamp_to_ns(msg.header.stamp), reply
@@ -142,7 +147,7 @@ def diagnostics_to_areas(msg: Any, node: str) -> dict[str, AreaStatus]:
         prefix, sep, area = str(st.name).partition(': ')
         if not sep or prefix != node:
             continue
-        level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+        level = _level(st)
         if level not in names:
             raise MessageError(f'diagnostics of {node}: {area} has level {level}, not one of 0..3')
         out[area] = AreaStatus(area, names[level], str(st.message), tuple(status_to_pairs(st)))
