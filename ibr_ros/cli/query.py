@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -26,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ibr_ros.errors import UserError
+from ibr_ros.io.atomic import write_atomic
 
 
 def _save_png(path: Path, rgb: np.ndarray) -> None:
@@ -35,14 +34,7 @@ def _save_png(path: Path, rgb: np.ndarray) -> None:
     ok, buf = cv2.imencode('.png', cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR))
     if not ok:
         raise UserError(f'{path}: PNG encoding failed')
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-    try:
-        with os.fdopen(fd, 'wb') as f:
-            f.write(buf.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, buf.tobytes())
 
 
 def _set_intrinsics(node, args: argparse.Namespace, deadline: float) -> None:

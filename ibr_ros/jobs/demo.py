@@ -31,7 +31,8 @@ from ibr_ros.core.evaluation.rephoto import score
 from ibr_ros.core.geometry.path import interpolate_path
 from ibr_ros.errors import UserError
 from ibr_ros.graph import Graph, NodeSpec
-from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
+from ibr_ros.io.atomic import write_atomic
+from ibr_ros.jobs.eval_depth import colour_depth
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 
 __all__ = ['run_demo']

@@ -44,6 +44,7 @@ from ibr_ros.core.depth.mvs import MvsOptions, MvsView, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig
 from ibr_ros.core.depth.remap import linear_remap, lut_remap, median_factor_remap
 from ibr_ros.errors import UserError
+from ibr_ros.io.atomic import write_atomic
 from ibr_ros.jobs.synth_bag import TOPICS, GroundTruthRenderer
 
 __all__ = [
@@ -165,13 +166,6 @@ def _grid_png(path: Path, rgb: NDArray, maps: dict[str, NDArray], g: NDArray) ->
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[i : i + 4]) for i in range(0, len(tiles), 4)]
     write_atomic(path, cv2.imencode('.png', np.vstack(rows))[1].tobytes())
-
-
-def write_atomic(path: Path, data: bytes | str) -> None:
-    """Write ``data`` to a temporary sibling, then rename it to ``path``."""
-    tmp = path.with_name(f'.{path.name}.tmp')
-    tmp.write_bytes(data.encode() if isinstance(data, str) else data)
-    tmp.replace(path)
 
 
 def _mean(rows: list[dict[str, float]], key: str) -> float:

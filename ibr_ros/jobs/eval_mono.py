@@ -48,7 +48,7 @@ from ibr_ros.core.depth.sky import SKY_PRESETS, OnnxSkySegmenter
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.plane import fit_ground_plane
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.eval_depth import write_atomic
+from ibr_ros.io.atomic import write_atomic
 from ibr_ros.jobs.mono_data import EVAL_SEED_BASE, MonoSample, render_samples
 
 __all__ = [

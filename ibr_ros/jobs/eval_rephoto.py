@@ -86,7 +86,8 @@ from ibr_ros.core.evaluation import (
 from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.render import NovelViewRenderer, RenderConfig, SourceView
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.eval_depth import load_views, sparse_points, write_atomic
+from ibr_ros.io.atomic import write_atomic
+from ibr_ros.jobs.eval_depth import load_views, sparse_points
 from ibr_ros.jobs.synth_bag import GroundTruthRenderer
 
 if TYPE_CHECKING:

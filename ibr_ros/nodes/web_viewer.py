@@ -12,9 +12,7 @@ publishes the queries the server makes. SIGINT/SIGTERM stop the executor, then t
 
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
 import threading
 from pathlib import Path
 from typing import Any
@@ -29,6 +27,7 @@ from sensor_msgs.msg import Image
 import msg_utils
 from ibr_ros.core.diagnostics import Queue
 from ibr_ros.core.navigation import Query
+from ibr_ros.io.atomic import write_atomic
 from ibr_ros.node_config.web_viewer import WEB_VIEWER
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
@@ -60,11 +59,7 @@ class WebViewer(Node):
         self.diag = start_diagnostics(self, WEB_VIEWER.diagnostics, self._diagnostics)
         url = self.server.start()
         if self.cfg.url_file:
-            path = Path(self.cfg.url_file)
-            fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-            with os.fdopen(fd, 'w') as f:
-                f.write(url + '\n')
-            os.replace(tmp, path)
+            write_atomic(Path(self.cfg.url_file), url + '\n')
         self.get_logger().info(f'serving the viewer on {url}')
 
     def _diagnostics(self) -> dict[str, Any]:

@@ -18,9 +18,7 @@ import asyncio
 import concurrent.futures
 import contextlib
 import json
-import os
 import struct
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -44,6 +42,7 @@ from ibr_ros.core.navigation import (
 )
 from ibr_ros.core.render import ReplyStatus
 from ibr_ros.errors import UserError
+from ibr_ros.io.atomic import write_atomic
 from ibr_ros.node_config.web_viewer import WebViewerConfig
 
 __all__ = ['Reply', 'ViewerServer', 'pack_frame', 'unpack_frame']
@@ -106,17 +105,6 @@ class _Client:
 
     def send_json(self, msg: dict[str, Any]) -> None:
         self.out.put_nowait(json.dumps(msg, separators=(',', ':')))
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
-    try:
-        with os.fdopen(fd, 'wb') as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class ViewerServer:
@@ -394,9 +382,9 @@ class ViewerServer:
             if not ok:
                 raise OSError('PNG encoding failed')
             path = folder / f'view_{shown.stamp}.png'
-            _atomic_write(path, png.tobytes())
+            write_atomic(path, png.tobytes())
             meta = {'stamp_ns': shown.stamp, 't_wc': shown.t_wc.tolist(), 'frame_id': self.frame_id}
-            _atomic_write(path.with_suffix('.json'), (json.dumps(meta, indent=1) + '\n').encode())
+            write_atomic(path.with_suffix('.json'), (json.dumps(meta, indent=1) + '\n').encode())
             return str(path)
 
         async def run() -> None:

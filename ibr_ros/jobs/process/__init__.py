@@ -84,7 +84,7 @@ import numpy as np
 
 from ibr_ros.core.render import ReplyStatus
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.eval_depth import write_atomic
+from ibr_ros.io.atomic import write_atomic
 from ibr_ros.jobs.process.evaluate import evaluate_ground_truth
 from ibr_ros.jobs.process.frames import Keyframe, subsample
 from ibr_ros.jobs.process.options import ProcessOptions, Progress

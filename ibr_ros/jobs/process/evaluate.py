@@ -14,7 +14,8 @@ import numpy as np
 from ibr_ros.core.geometry.transforms import rotation_angle_deg, similarity_times_pose
 from ibr_ros.core.registration.sfm import similarity_from_orientations
 from ibr_ros.errors import UserError
-from ibr_ros.jobs.eval_depth import colour_depth, write_atomic
+from ibr_ros.io.atomic import write_atomic
+from ibr_ros.jobs.eval_depth import colour_depth
 from ibr_ros.jobs.process.frames import Keyframe
 from ibr_ros.jobs.process.options import Progress
 from ibr_ros.jobs.process.render import NovelView
