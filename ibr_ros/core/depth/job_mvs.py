@@ -34,6 +34,7 @@ from ibr_ros.core.depth.mvs import (
     MvsResult,
     MvsView,
     geometric_filter,
+    in_view_pixels,
     mvs_depth,
     select_neighbours,
 )
@@ -238,15 +239,10 @@ def guided_roi(
         return None
     d = sub[v, u].astype(np.float64)
     pts = ref_cam.backproject(np.c_[u * step, v * step], d) @ ref_pose[:3, :3].T + ref_pose[:3, 3]
-    pc = (pts - pose[:3, 3]) @ pose[:3, :3]
-    z = pc[:, 2]
-    front = z > 1e-9
-    px, _ = cam.project(pc[front])
-    inside = (px[:, 0] >= -0.5) & (px[:, 0] <= cam.width - 0.5)
-    inside &= (px[:, 1] >= -0.5) & (px[:, 1] <= cam.height - 0.5)
+    inside, z, px = in_view_pixels(pts, cam, pose)
     if not inside.any():
         return None
-    px, z = px[inside], z[front][inside]
+    px, z = px[inside], z[inside]
     lo = np.floor(px.min(axis=0)) - margin
     hi = np.ceil(px.max(axis=0)) + margin + 1
     x0, y0 = (max(0, int(c) // 2 * 2) for c in lo)

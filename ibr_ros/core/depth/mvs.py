@@ -78,6 +78,7 @@ __all__ = [
     'compute_depth_maps',
     'depth_range_from_points',
     'geometric_filter',
+    'in_view_pixels',
     'mvs_depth',
     'probe_points',
     'select_neighbours',
@@ -578,13 +579,22 @@ def _relative(t_wr: NDArray[np.float64], t_ws: NDArray[np.float64]) -> tuple[NDA
     return t_sr[:3, :3], t_sr[:3, 3]
 
 
-def _in_view(points_w: NDArray[np.float64], camera: PinholeCamera, t_wc: NDArray[np.float64]):
-    """(mask of world points that project inside the image in front of the camera, their z-depths)."""
+def in_view_pixels(
+    points_w: NDArray[np.float64], camera: PinholeCamera, t_wc: NDArray[np.float64]
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+    """(mask of the world points (Nx3) that lie in front of the camera at ``t_wc`` and project inside
+    its image, their z-depths in metres, their Nx2 pixels; NaN behind the camera)."""
     pc = (points_w - t_wc[:3, 3]) @ t_wc[:3, :3]
     uv, z = camera.project(pc)
     with np.errstate(invalid='ignore'):
         ok = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= camera.width - 0.5)
         ok &= (uv[:, 1] >= -0.5) & (uv[:, 1] <= camera.height - 0.5)
+    return ok, z, uv
+
+
+def _in_view(points_w: NDArray[np.float64], camera: PinholeCamera, t_wc: NDArray[np.float64]):
+    """(mask of world points that project inside the image in front of the camera, their z-depths)."""
+    ok, z, _ = in_view_pixels(points_w, camera, t_wc)
     return ok, z
 
 
