@@ -22,6 +22,8 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -55,6 +57,7 @@ from ibr_ros.node_config.table import (
 __all__ = [
     'BAD_MESSAGE',
     'EXIT_BAD_CONFIG',
+    'POSE_MESSAGES',
     'BadInput',
     'StampAssembler',
     'declare_table',
@@ -69,6 +72,12 @@ __all__ = [
     'start_diagnostics',
     'subscribe_field',
 ]
+
+#: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
+POSE_MESSAGES = {
+    'pose': (PoseStamped, msg_utils.pose_stamped_to_matrix),
+    'odometry': (Odometry, msg_utils.odometry_to_matrix),
+}
 
 #: What converting a malformed message raises: :data:`msg_utils.CONVERSION_ERRORS` (the nodes' name).
 BAD_MESSAGE = msg_utils.CONVERSION_ERRORS

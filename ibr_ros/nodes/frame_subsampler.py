@@ -23,7 +23,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -41,6 +40,7 @@ from ibr_ros.core.flight.keyframes import (
 from ibr_ros.core.flight.status import IMAGE_TRANSPORTS, FlightStatus, PoseSource
 from ibr_ros.node_config.frame_subsampler import FRAME_SUBSAMPLER
 from ibr_ros.nodes.common import (
+    POSE_MESSAGES,
     BadInput,
     StampAssembler,
     declare_table,
@@ -55,12 +55,6 @@ from ibr_ros.nodes.common import (
 
 #: Image topic (:data:`~ibr_ros.core.flight.status.IMAGE_TRANSPORTS`) -> its message type.
 IMAGE_TYPES = {'camera/image_raw': Image, 'camera/image_raw/compressed': CompressedImage}
-
-#: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
-POSE_MESSAGES = {
-    'pose': (PoseStamped, msg_utils.pose_stamped_to_matrix),
-    'odometry': (Odometry, msg_utils.odometry_to_matrix),
-}
 
 
 class FrameSubsampler(Node):

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseArray, PoseStamped
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import MarkerArray
@@ -32,6 +31,7 @@ from ibr_ros.core.viz import VizModel
 from ibr_ros.node_config.scene_viz import SCENE_VIZ
 from ibr_ros.nodes.common import (
     BAD_MESSAGE,
+    POSE_MESSAGES,
     BadInput,
     declare_table,
     latched_qos,
@@ -43,11 +43,6 @@ from ibr_ros.nodes.common import (
     subscribe_field,
 )
 
-#: ``pose_type`` -> the message type of ``camera/pose`` and its conversion to a 4x4 ``T_wc``.
-POSE_MESSAGES = {
-    'pose': (PoseStamped, msg_utils.pose_stamped_to_matrix),
-    'odometry': (Odometry, msg_utils.odometry_to_matrix),
-}
 #: Novel-view queries kept until their camera_info comes (the newest).
 MAX_QUERIES = 100
 
