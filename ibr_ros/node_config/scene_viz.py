@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 from ibr_ros.core.viz import CloudConfig, FrameNames, VizConfig
 from ibr_ros.errors import UserError
+from ibr_ros.node_config.frame_subsampler import POSE_TYPE_CHOICES
 from ibr_ros.node_config.table import (
     DIAGNOSTICS_PERIOD,
     DIAGNOSTICS_TOPIC,
@@ -89,7 +90,7 @@ SCENE_VIZ: ParamTable[SceneVizConfig] = ParamTable(
             'pose_type',
             'pose',
             "camera/pose message: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)",
-            choices=('pose', 'odometry'),
+            choices=POSE_TYPE_CHOICES,
         ),
         Param('point_stride', 2, 'keyframe points: every n-th pixel in x and y', (1, 64)),
         Param(
