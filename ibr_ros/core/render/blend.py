@@ -58,6 +58,22 @@ def _same_surface(za, zb, tol):
     return 1 if hi <= lo * (1.0 + tol) or lo == np.inf else 0
 
 
+@njit(cache=True)
+def _stable_factors(pen, sigma):
+    """``exp(-(pen - min(pen)) / sigma)`` per view and superpixel (float64; ``+inf`` penalty: 0)."""
+    p_min = np.inf
+    for j in range(pen.shape[0]):
+        for k in range(pen.shape[1]):
+            p_min = min(p_min, pen[j, k])
+    ew = np.zeros(pen.shape, np.float64)
+    if p_min == np.inf:
+        return ew
+    for j in range(pen.shape[0]):
+        for k in range(pen.shape[1]):
+            ew[j, k] = math.exp(-(np.float64(pen[j, k]) - p_min) / sigma)
+    return ew
+
+
 @njit(cache=True, parallel=True)
 def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, gain, tol, weights, lookup, out):
     """Blend the ``n <= 4`` warped views per pixel (see :mod:`ibr_ros.core.render.renderer`).
@@ -90,6 +106,8 @@ def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, gain, to
     iters, max_shift, min_fit = lookup
     out_rgb, out_valid, out_src, out_depth = out
     h, w = out_valid.shape
+    ew = _stable_factors(pen, sigma) if mode == 3 else np.zeros((1, 1))
+    stable_floor = math.exp(-_STABLE_CUTOFF)
     for y in prange(h):
         sel = np.empty(4, np.int64)
         sel_p = np.empty(4, np.float32)
@@ -148,12 +166,22 @@ def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, gain, to
             ar = ag = ab = sw = np.float32(0.0)
             m = min(cnt, n_blend)
             p_max = sel_p[m - 1]
+            w_best = np.float32(1.0)  # set at q == 0 (ulr)
+            e_best = 1.0  # set at q == 0 (stable)
             for q in range(m):
                 if mode == 3:
-                    d = (sel_p[q] - sel_p[0]) / sigma
-                    if d > _STABLE_CUTOFF:
-                        break
-                    wt = np.float32(gain[sel[q]] * math.exp(-d))
+                    e = ew[sel[q], ids[sel[q], y, x]]
+                    if q == 0:
+                        e_best = e
+                    if e_best > 0.0:  # exp(-(p - p_best) / sigma) as a ratio of the precomputed factors
+                        if e < e_best * stable_floor:
+                            break
+                        wt = np.float32(gain[sel[q]] * (e / e_best))
+                    else:  # underflow of the factors (penalties thousands of degrees apart)
+                        d = (sel_p[q] - sel_p[0]) / sigma
+                        if d > _STABLE_CUTOFF:
+                            break
+                        wt = np.float32(gain[sel[q]] * math.exp(-d))
                 elif mode == 1:
                     d = (sel_p[q] - sel_p[0]) / sigma
                     if d > _SOFT_CUTOFF:

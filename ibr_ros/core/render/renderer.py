@@ -89,7 +89,6 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import overload
 
-import cv2
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -98,6 +97,7 @@ from ibr_ros.core.geometry.camera import PinholeCamera
 from ibr_ros.core.geometry.transforms import GeometryError, validate_pose
 from ibr_ros.core.render.blend import BLEND_MODES, blend_views
 from ibr_ros.core.render.config import RenderConfig
+from ibr_ros.core.render.holes import fill_small_holes
 from ibr_ros.core.render.projection import reprojection_params
 from ibr_ros.core.render.raster import affine_maps, raster_views, row_spans
 from ibr_ros.core.render.superpixels import slic, split_at_depth_edges, superpixel_stats
@@ -284,45 +284,6 @@ def _doubt(
     size = np.bincount(labels.ravel(), minlength=n_labels)
     total = np.bincount(labels.ravel(), weights=conf.ravel(), minlength=n_labels)
     return (1.0 - total / np.maximum(size, 1)).astype(np.float32)
-
-
-def fill_small_holes(
-    rgb: NDArray[np.uint8],
-    valid: NDArray[np.bool_],
-    source: NDArray[np.int16],
-    depth: NDArray[np.float32],
-    *,
-    max_px: int,
-) -> int:
-    """Fill, in place, the holes of a render (8-connected components of ``~valid``) of at most
-    ``max_px`` pixels that do not touch the image border: cracks between warped superpixels, not
-    missing scene. Colour by inpainting (Telea), ``source`` and ``depth`` from the nearest rendered
-    pixel; they become valid. Returns the number of pixels filled."""
-    holes = (~valid).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=8)
-    if n <= 1:
-        return 0
-    x, y, w, h, area = stats[:, 0], stats[:, 1], stats[:, 2], stats[:, 3], stats[:, 4]
-    H, W = valid.shape
-    inner = (area <= max_px) & (x > 0) & (y > 0) & (x + w < W) & (y + h < H)
-    inner[0] = False  # the background label (rendered pixels)
-    mask = inner[labels]
-    filled = int(np.count_nonzero(mask))
-    if not filled:
-        return 0
-    rgb[:] = cv2.inpaint(rgb, mask.astype(np.uint8), 2, cv2.INPAINT_TELEA)
-    _, nearest = cv2.distanceTransformWithLabels(
-        holes, cv2.DIST_L2, 3, labelType=cv2.DIST_LABEL_PIXEL
-    )  # label of the nearest rendered (zero) pixel
-    lut = np.zeros(int(nearest.max()) + 1, np.int64)  # label of a rendered pixel -> its flat index
-    zy, zx = np.nonzero(valid)
-    lut[nearest[zy, zx]] = zy * W + zx
-    my, mx = np.nonzero(mask)
-    src = lut[nearest[my, mx]]
-    source[my, mx] = source.reshape(-1)[src]
-    depth[my, mx] = depth.reshape(-1)[src]
-    valid[mask] = True
-    return filled
 
 
 class NovelViewRenderer:

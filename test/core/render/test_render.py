@@ -661,7 +661,7 @@ def test_pixels_no_view_covers_take_the_superpixels_that_failed_only_coverage() 
 
 
 def test_small_inner_holes_are_filled_and_the_border_and_large_ones_are_not() -> None:
-    from ibr_ros.core.render.renderer import fill_small_holes
+    from ibr_ros.core.render.holes import fill_small_holes
 
     h, w = 60, 80
     rgb = np.zeros((h, w, 3), np.uint8) + np.uint8(120)
@@ -680,3 +680,35 @@ def test_small_inner_holes_are_filled_and_the_border_and_large_ones_are_not() ->
     assert (depth[10:12, 10:13] == 7.0).all()
     assert not valid[30:50, 30:60].any()
     assert not valid[0:3, 70:75].any()
+
+
+def test_hole_filling_goes_from_the_rim_inwards() -> None:
+    """A crack 3 px wide between two surfaces: its outer columns take their side's source and
+    depth and a colour near their side's, the middle column lies between; a hole that is larger
+    than the limit, and a bad shape, are refused."""
+    from ibr_ros.core.render.holes import fill_small_holes
+
+    h, w = 20, 21
+    rgb = np.zeros((h, w, 3), np.uint8)
+    source = np.zeros((h, w), np.int16)
+    depth = np.zeros((h, w), np.float32)
+    rgb[:, :10], source[:, :10], depth[:, :10] = 40, 1, 5.0
+    rgb[:, 11:], source[:, 11:], depth[:, 11:] = 200, 2, 9.0
+    rgb[:, 10], source[:, 10], depth[:, 10] = 120, 2, 9.0  # the seam
+    valid = np.ones((h, w), bool)
+    valid[5:15, 9:12] = False
+    for a in (rgb, source, depth):
+        a[~valid] = 0
+    before = (rgb.copy(), valid.copy(), source.copy(), depth.copy())
+    assert fill_small_holes(*before, max_px=29) == 0  # 30 px: too large
+    assert fill_small_holes(rgb, valid, source, depth, max_px=30) == 30
+    assert valid.all()
+    assert (source[5:15, 9] == 1).all()
+    assert (depth[5:15, 9] == 5.0).all()
+    assert (source[5:15, 11] == 2).all()
+    assert (depth[5:15, 11] == 9.0).all()
+    assert (rgb[5:15, 9] < 120).all()
+    assert (rgb[5:15, 11] > 120).all()
+    assert (np.abs(rgb[5:15, 10].astype(int) - 120) <= 2).all()  # the middle: the mean of both sides
+    with pytest.raises(ValueError, match='depth'):
+        fill_small_holes(rgb, valid, source, depth[:-1], max_px=30)
