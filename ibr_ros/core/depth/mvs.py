@@ -146,9 +146,6 @@ class MvsOptions:
     top_k: int = 2
     refine_window: int = 7
     coarse_band: int = 0
-    coarse_neighbours: bool = False
-    coarse_peaks: int = 1
-    coarse_scale: float = 0.5
     propagate_at_sweep_scale: bool = False
     refine_steps: int = 3
     propagation_radius: int = 4
@@ -408,7 +405,6 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
     pos = np.empty((H, W), np.float32)
     best = np.empty((H, W), np.float32)
     second = np.empty((H, W), np.float32)
-    pos2 = np.empty((H, W), np.float32)
     n_strips = (H + strip - 1) // strip
     for si in prange(n_strips):
         y0 = si * strip
@@ -448,11 +444,9 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
                         cb = vol[k, y, x]
                         kb = k
                 c2 = np.float32(-1.0)
-                k2 = -1
                 for k in range(P):
                     if abs(k - kb) > sep and vol[k, y, x] > c2:
                         c2 = vol[k, y, x]
-                        k2 = k
                 off = 0.0
                 if fit and 0 < kb < P - 1:
                     cm = vol[kb - 1, y, x]
@@ -463,8 +457,7 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
                 pos[y0 + y, x] = kb + off if cb > -1.0 else -1.0
                 best[y0 + y, x] = cb
                 second[y0 + y, x] = c2
-                pos2[y0 + y, x] = k2
-    return pos, best, second, pos2
+    return pos, best, second
 
 
 @njit(cache=True)
@@ -695,16 +688,7 @@ class _Stack:
                 span = max(span, float(np.linalg.norm(d, axis=0).max()))
         return span
 
-    def sweep(
-        self,
-        stats,
-        base: NDArray,
-        offsets: ArrayLike,
-        win: int,
-        o: MvsOptions,
-        fit: bool = True,
-        peak2: bool = False,
-    ):
+    def sweep(self, stats, base: NDArray, offsets: ArrayLike, win: int, o: MvsOptions, fit: bool = True):
         """(position, best, second-best) of :func:`_sweep` for the hypotheses ``base + offsets[k]``.
 
         Strips are handed out one at a time (dynamic scheduling) so that a thread descheduled on a
@@ -713,11 +697,10 @@ class _Stack:
         base = np.ascontiguousarray(base, dtype=np.float32)
         offsets = np.asarray(offsets, dtype=np.float32).reshape(-1)
         with numba.parallel_chunksize(1):
-            out = _sweep(
+            return _sweep(
                 self.ref, stats[0], stats[1], self.srcs, self.sizes, self.a, self.b, base, offsets,
                 win // 2, o.top_k, _STRIP_ROWS, fit, 2,
             )  # fmt: skip
-        return out if peak2 else out[:3]
 
 
 def _scaled(cam: PinholeCamera, s: float) -> PinholeCamera:
@@ -779,52 +762,19 @@ def _sweep_and_refine(
     hc, wc = coarse.ref.shape
     stats_s = _box_stats(coarse.ref, o.window // 2)
     if o.coarse_band > 0 and min(hc, wc) >= 16:
-        top = stack(o.coarse_scale * s) if o.coarse_scale < 1 else coarse
+        top = stack(0.5 * s)
         n_top = max(3, (n_planes + 2) // 2)
         step_top = (rho_far - rho_near) / (n_top - 1)
         planes = rho_near + step_top * np.arange(n_top)
         stats_t = _box_stats(top.ref, o.window // 2)
-        pos, best, second, pos2 = top.sweep(stats_t, np.zeros(top.ref.shape), planes, o.window, o, peak2=True)
+        pos, best, second = top.sweep(stats_t, np.zeros(top.ref.shape), planes, o.window, o)
         rho_t = np.where(pos >= 0, rho_near + pos * step_top, 0.0).astype(np.float32)
         bad_t = ((pos < 0.5) | (pos > n_top - 1.5) | (best - second < o.min_margin)).astype(np.uint8)
+        base = cv2.resize(rho_t, (wc, hc), interpolation=cv2.INTER_NEAREST)
         band = o.coarse_band
-        tops = [rho_t]
-        if o.coarse_neighbours:  # the bands of the nearest / farthest winner among the 3x3 too
-            ker = np.ones((3, 3), np.uint8)
-            far_t = np.asarray(cv2.erode(np.where(rho_t > 0, rho_t, np.float32(1e9)), ker), np.float32)
-            tops += [np.asarray(cv2.dilate(rho_t, ker), np.float32), np.where(far_t < 1e9, far_t, rho_t)]
-        rho_s = np.zeros((hc, wc), np.float32)
-        score_s = np.full((hc, wc), -np.inf, np.float32)
-        for r_t in tops:
-            base = cv2.resize(r_t, (wc, hc), interpolation=cv2.INTER_NEAREST)
-            pos, sc, _ = coarse.sweep(stats_s, base, np.arange(-band, band + 1) * step, o.window, o)
-            better = (pos >= 0) & (sc > score_s)
-            rho_s = np.where(better, base + (pos - band) * np.float32(step), rho_s).astype(np.float32)
-            score_s = np.where(better, sc, score_s)
-        if o.coarse_peaks == 2:  # the band of the coarse sweep's second peak: winner and ambiguity
-            rho_t2 = np.where(pos2 >= 0, rho_near + pos2 * step_top, 0.0).astype(np.float32)
-            base = cv2.resize(rho_t2, (wc, hc), interpolation=cv2.INTER_NEAREST)
-            pos, sc, _ = coarse.sweep(stats_s, base, np.arange(-band, band + 1) * step, o.window, o)
-            rho2 = np.where(pos >= 0, base + (pos - band) * np.float32(step), 0.0).astype(np.float32)
-            sc = np.where(
-                (pos >= 0)
-                & cv2.resize((pos2 >= 0).astype(np.uint8), (wc, hc), interpolation=cv2.INTER_NEAREST).astype(
-                    bool
-                ),
-                sc,
-                np.float32(-1.0),
-            )
-            apart = np.abs(rho2 - rho_s) > 2.0 * abs(step)
-            ambiguous = apart & (np.abs(sc - score_s) < o.min_margin)
-            rho_s = np.where(sc > score_s, rho2, rho_s)
-            score_s = np.maximum(sc, score_s)
-            k_s = (rho_s - rho_near) / step
-            bad_s = (k_s < 0.5) | (k_s > n_planes - 1.5) | ambiguous
-            bad_s |= ~(score_s > -1.0)
-        else:
-            bad_s = cv2.resize(bad_t, (wc, hc), interpolation=cv2.INTER_NEAREST).astype(bool) | ~(
-                score_s > -1.0
-            )
+        pos, _, _ = coarse.sweep(stats_s, base, np.arange(-band, band + 1) * step, o.window, o)
+        rho_s = np.where(pos >= 0, base + (pos - band) * np.float32(step), 0.0).astype(np.float32)
+        bad_s = cv2.resize(bad_t, (wc, hc), interpolation=cv2.INTER_NEAREST).astype(bool) | (pos < 0)
     else:
         k0, k1 = 0, n_planes - 1
         if window is not None:  # planes within the window's inverse depths, 2 more each side
