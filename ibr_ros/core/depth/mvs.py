@@ -468,7 +468,7 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
                 _warp_rows(srcs[i], hs, ws, a[i], b[i], base, offsets[h], ya, yb, s, valid, y0, y1)
                 _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn[i])
             for y in range(rows):
-                tops[:] = -np.inf
+                tops[:] = -2.0  # below any ZNCC; finite (fast-math ninf)
                 for i in range(n):  # insert source i's score into each column's sorted list
                     zc[:] = zn[i, y]
                     for j in range(k_top):
