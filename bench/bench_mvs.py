@@ -154,25 +154,31 @@ def synthetic(runs: int) -> float:
     return t_contract
 
 
+def real_keyframes(bag: Path, cache: Path) -> tuple[list, np.ndarray, dict]:
+    """(keyframes as (rgb, camera, t_wc, stamp), SfM points, observed point ids per stamp) that
+    ``ibr process`` registers in ``bag``, cached in ``cache`` after the first run."""
+    if cache.is_file():
+        return pickle.loads(cache.read_bytes())
+    from ibr_ros.jobs.process import ProcessOptions
+    from ibr_ros.jobs.process.frames import subsample
+    from ibr_ros.jobs.process.params import load_params, process_configs
+    from ibr_ros.jobs.process.sfm import register_keyframes
+
+    popts = ProcessOptions(views=0)
+    cfg = process_configs(load_params(None), popts)
+    sub = subsample(bag, cfg, popts, None)
+    if sub.sfm_why is None:
+        raise SystemExit(f'{bag}: has poses, the real-photo bench expects an SfM bag')
+    keyframes, cfg, _, sparse = register_keyframes(sub, cfg, None, None)
+    kfs = [(k.rgb, k.camera, k.t_wc, k.stamp) for k in keyframes]
+    points, observed = sparse.points, sparse.observed
+    cache.write_bytes(pickle.dumps((kfs, points, observed)))
+    return kfs, points, observed
+
+
 def brighton(bag: Path, cache: Path, n_views: int, runs: int) -> None:
     """Prints the real-photo table (keyframes and SfM of ``ibr process``, cached in ``cache``)."""
-    if cache.is_file():
-        kfs, points, observed = pickle.loads(cache.read_bytes())
-    else:
-        from ibr_ros.jobs.process import ProcessOptions
-        from ibr_ros.jobs.process.frames import subsample
-        from ibr_ros.jobs.process.params import load_params, process_configs
-        from ibr_ros.jobs.process.sfm import register_keyframes
-
-        popts = ProcessOptions(views=0)
-        cfg = process_configs(load_params(None), popts)
-        sub = subsample(bag, cfg, popts, None)
-        if sub.sfm_why is None:
-            raise SystemExit(f'{bag}: has poses, the real-photo bench expects an SfM bag')
-        keyframes, cfg, _, sparse = register_keyframes(sub, cfg, None, None)
-        kfs = [(k.rgb, k.camera, k.t_wc, k.stamp) for k in keyframes]
-        points, observed = sparse.points, sparse.observed
-        cache.write_bytes(pickle.dumps((kfs, points, observed)))
+    kfs, points, observed = real_keyframes(bag, cache)
     poses = np.stack([k[2] for k in kfs])
     cams = [k[1] for k in kfs]
     picks = [int(i) for i in np.linspace(0, len(kfs) - 1, n_views + 2).round()[1:-1]]
