@@ -60,6 +60,8 @@ VARIANTS: dict[str, tuple[mvs.MvsOptions, str]] = {
     'D': (replace(D, plane_step_px=3.0), 'plane_step_px 3'),
     'DA': (replace(D, plane_step_px=3.0, coarse_band=2), 'plane_step_px 3, coarse_band 2'),
     'Aw9': (replace(D, coarse_band=2, window=9), 'coarse_band 2, window 9'),
+    'S4': (replace(D, sweep_scale=0.4), 'sweep_scale 0.4'),
+    'DR1': (replace(D, plane_step_px=3.0, propagation_radius=0), 'plane_step_px 3, propagation_radius 0'),
     'R1': (replace(D, propagation_radius=0), 'propagation_radius 0 (5 propagation candidates, not 7)'),
     'fast': (
         replace(
