@@ -3,9 +3,11 @@
 """Sweep-kernel benchmark (issue 15): ``mvs._sweep`` against the kernels before the speed-up.
 
 Baseline in the same process: ``bench/_sweep_kernel_baseline.py`` (``_warp_rows``, ``_zncc_rows``,
-``_sweep`` of main at 606ef63). Inputs: the synthetic orbit of ``bench_mvs.py`` (seed 1) at 1000x750
-and 640x360 with 4 neighbours, and ``--views`` keyframes of ``--bag`` (real photos, keyframes and
-SfM as ``ibr process`` makes them, cached like ``bench_mvs.py --bag``) with up to 4 neighbours.
+``_sweep`` of main at 169fdec, before round 2); ``--round1`` also times the kernels before round 1
+(``_sweep_kernel_baseline_606ef63.py``) for the cumulative ratio. Inputs: the synthetic orbit of
+``bench_mvs.py`` (seed 1) at 1000x750 and 640x360 with 4 neighbours, and ``--views`` keyframes of
+``--bag`` (real photos, keyframes and SfM as ``ibr process`` makes them, cached like
+``bench_mvs.py --bag``) with up to 4 neighbours.
 
 Per input:
 
@@ -39,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmark this c
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import _sweep_kernel_baseline as old_kernels
+import _sweep_kernel_baseline_606ef63 as round1_kernels
 import bench_mvs
 import numba
 import numpy as np
@@ -75,17 +78,19 @@ def clock(fn: Callable[[], Any]) -> tuple[float, float, Any]:
     return time.perf_counter() - t0, time.process_time() - c0, out
 
 
-def kernel_times(calls: list[tuple], runs: int) -> dict[str, dict[str, tuple[float, float]]]:
+def kernel_times(
+    calls: list[tuple], runs: int, kernels: tuple[tuple[str, Callable[..., Any]], ...] = KERNELS
+) -> dict[str, dict[str, tuple[float, float]]]:
     """Per part ('planes', 'refine', 'all') and kernel: median (wall s, CPU s), runs alternating."""
     parts = {
         'planes': [c for c in calls if c[8].size > 8],
         'refine': [c for c in calls if c[8].size <= 8],
     }
-    t: dict[str, dict[str, list[tuple[float, float]]]] = {p: {k: [] for k, _ in KERNELS} for p in parts}
-    for _, fn in KERNELS:
+    t: dict[str, dict[str, list[tuple[float, float]]]] = {p: {k: [] for k, _ in kernels} for p in parts}
+    for _, fn in kernels:
         run_calls(fn, calls[:1])  # compiled / loaded
     for i in range(runs):
-        order = KERNELS if i % 2 == 0 else KERNELS[::-1]
+        order = kernels if i % 2 == 0 else kernels[::-1]
         for p, cs in parts.items():
             for k, fn in order:
                 w, c, _ = clock(lambda fn=fn, cs=cs: run_calls(fn, cs))
@@ -99,7 +104,7 @@ def kernel_times(calls: list[tuple], runs: int) -> dict[str, dict[str, tuple[flo
     }
     out['all'] = {
         k: (out['planes'][k][0] + out['refine'][k][0], out['planes'][k][1] + out['refine'][k][1])
-        for k, _ in KERNELS
+        for k, _ in kernels
     }
     return out
 
@@ -149,10 +154,12 @@ def pipeline(args: tuple, kw: dict, runs: int) -> dict[str, tuple[float, float, 
     }
 
 
-def report(name: str, args: tuple, kw: dict, runs: int, quality: Callable[[np.ndarray], str]) -> bool:
+def report(
+    name: str, args: tuple, kw: dict, runs: int, quality: Callable[[np.ndarray], str], round1: bool
+) -> bool:
     """Prints one table row per input; True if the output passes the acceptance checks."""
     calls, _ = record(args, kw)
-    kt = kernel_times(calls, runs)
+    kt = kernel_times(calls, runs, KERNELS + ((('r1', round1_kernels._sweep),) if round1 else ()))
     zerr, zvalid = zncc_check(calls)
     pt = pipeline(args, kw, runs)
     close, set_diff = compare(pt['old'][2].depth, pt['new'][2].depth)
@@ -166,7 +173,8 @@ def report(name: str, args: tuple, kw: dict, runs: int, quality: Callable[[np.nd
         f'| {name} | {pt["new"][2].n_planes} | {kt["all"]["old"][1]:.2f} | {kt["all"]["new"][1]:.2f} | '
         f'{ratio(kt["planes"])} | {ratio(kt["refine"])} | {ratio(kt["all"])} | '
         f'{pt["old"][1]:.2f} | {pt["new"][1]:.2f} | {ratio(pt)} | {zerr:.1e} / {zvalid} | '
-        f'{close:.5f} | {set_diff:.5f} | {q_old} | {q_new} | {"ok" if ok else "DIFFERS"} |',
+        f'{close:.5f} | {set_diff:.5f} | {q_old} | {q_new} | {"ok" if ok else "DIFFERS"} |'
+        + (f' {kt["all"]["new"][1] / kt["all"]["r1"][1]:.2f} |' if round1 else ''),
         flush=True,
     )
     return ok
@@ -181,6 +189,7 @@ def main() -> int:
     p.add_argument('--cache', type=Path, default=Path('/tmp/ibr_bench_mvs_brighton.pkl'))
     p.add_argument('--views', type=int, default=3, help='real keyframes')
     p.add_argument('--skip-real', action='store_true')
+    p.add_argument('--round1', action='store_true', help='also time the kernels before round 1')
     p.add_argument('--sizes', default='1000x750,640x360')
     a = p.parse_args()
     load0 = os.getloadavg()[0]
@@ -191,9 +200,9 @@ def main() -> int:
         '| input | planes | old kernel CPU s | new kernel CPU s | planes new/old CPU (wall) '
         '| refine new/old | kernel new/old | old mvs_depth CPU s | new mvs_depth CPU s '
         '| mvs_depth new/old | ZNCC max diff / validity diffs | depth within 1e-4 | depth set differs '
-        '| quality old | quality new | check |'
+        '| quality old | quality new | check |' + (' kernel new / before round 1 CPU |' if a.round1 else '')
     )
-    print('| --- ' * 16 + '|')
+    print('| --- ' * (17 if a.round1 else 16) + '|')
     ok = True
     for size in (tuple(int(v) for v in s.split('x')) for s in a.sizes.split(',')):
         cam, frames, poses, pts = bench_mvs.views(size, 'orbit', 1)
@@ -206,7 +215,7 @@ def main() -> int:
             return '{:.3f} / {:.3f}'.format(*bench_mvs.accuracy(d, gt))
 
         name = f'{size[0]}x{size[1]} orbit, {len(js)} nbrs'
-        ok &= report(name, args, {'points_w': pts}, a.runs, synth_quality)
+        ok &= report(name, args, {'points_w': pts}, a.runs, synth_quality, a.round1)
     if not a.skip_real:
         kfs, points, observed = bench_mvs.real_keyframes(a.bag, a.cache)
         poses = np.stack([k[2] for k in kfs])
@@ -225,7 +234,7 @@ def main() -> int:
                 return f'{(d > 0).mean():.3f} / {has.mean():.3f} / {(rel < 0.05).mean():.3f}'
 
             name = f'{a.bag.name} kf {i}, {len(js)} nbrs'
-            ok &= report(name, args, {'points_w': points}, a.runs, real_quality)
+            ok &= report(name, args, {'points_w': points}, a.runs, real_quality, a.round1)
     print(f'load average (1 min) before {load0:.2f}, after {os.getloadavg()[0]:.2f}')
     if not ok:
         print('OUTPUT DIFFERS from the old kernels beyond floating-point noise')

@@ -349,18 +349,35 @@ def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
             valid[y - y0, :] = ok
 
 
-@njit(cache=True, fastmath=_FASTMATH, error_model='numpy')
-def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn):
-    """Windowed ZNCC of the warped rows ``s`` (from row ``ya``) against the reference, rows y0:y1.
+@njit(inline='always')
+def _zncc_score(h0, h1, h2, inv, m, v, ok):
+    """ZNCC of one window from its source sums ``h0``, ``h1``, ``h2`` (sum, sum of squares, sum of
+    products with the reference), 1 / its area, the reference mean ``m`` and variance ``v``."""
+    ms = h0 * inv
+    den = v * (h1 * inv - ms * ms)
+    z = (h2 * inv - m * ms) / math.sqrt(max(den, 1e-6))
+    z = z if den > 1e-6 else 0.0
+    return z if ok else -1.0
 
-    Running column and row sums (float64) over (2r+1)^2 boxes truncated at the image border, the
-    same boxes as :func:`_box_stats`. Invalid centres score -1, flat source windows 0. Per row, the
-    row sums (a serial loop) go to buffers and the scores come from a loop that vectorises.
+
+@njit(cache=True, fastmath=_FASTMATH, error_model='numpy')
+def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
+    """Windowed ZNCC of the warped rows ``s`` (from row ``ya``) against the reference, rows y0:y1,
+    inserted into ``tops`` (k, y1 - y0, W: per pixel the k best scores so far, descending).
+
+    Running column sums (float64; one pass per row adds the entering and subtracts the leaving row)
+    over (2r+1)^2 boxes truncated at the image border, the same boxes as :func:`_box_stats`; invalid
+    centres score -1, flat source windows 0. The column sums have r zero columns each side (the
+    loops index the views ``d*`` by x: an offset index kept them from vectorising); for r = 3
+    (7-pixel windows) the row sums are 7 direct taps in the loop that computes the scores
+    (vectorised), otherwise serial running sums into row buffers. ``zrow``: float32, W scores.
     """
     H, W = ref.shape
-    c0 = np.zeros(W)
-    c1 = np.zeros(W)
-    c2 = np.zeros(W)
+    Wp = W + 2 * r
+    c0 = np.zeros(Wp)  # column sums, column x at x + r
+    c1 = np.zeros(Wp)
+    c2 = np.zeros(Wp)
+    d0, d1, d2 = c0[r : r + W], c1[r : r + W], c2[r : r + W]  # (indexed by x: loops that vectorise)
     h0 = np.empty(W)
     h1 = np.empty(W)
     h2 = np.empty(W)
@@ -372,60 +389,71 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn):
         rrow = ref[yy]
         for x in range(W):
             v = np.float64(srow[x])
-            c0[x] += v
-            c1[x] += v * v
-            c2[x] += v * rrow[x]
+            d0[x] += v
+            d1[x] += v * v
+            d2[x] += v * rrow[x]
     for y in range(y0, y1):
         if y > y0:
-            yy = y + r
-            if yy < H:
-                srow = s[yy - ya]
-                rrow = ref[yy]
+            yi, yo = y + r, y - r - 1
+            if yi < H and yo >= 0:  # one row enters, one leaves
+                si, so = s[yi - ya], s[yo - ya]
+                ri, ro = ref[yi], ref[yo]
                 for x in range(W):
-                    v = np.float64(srow[x])
-                    c0[x] += v
-                    c1[x] += v * v
-                    c2[x] += v * rrow[x]
-            yy = y - r - 1
-            if yy >= 0:
-                srow = s[yy - ya]
-                rrow = ref[yy]
+                    v = np.float64(si[x])
+                    u = np.float64(so[x])
+                    d0[x] += v - u
+                    d1[x] += v * v - u * u
+                    d2[x] += v * ri[x] - u * ro[x]
+            elif yi < H:
+                si, ri = s[yi - ya], ref[yi]
                 for x in range(W):
-                    v = np.float64(srow[x])
-                    c0[x] -= v
-                    c1[x] -= v * v
-                    c2[x] -= v * rrow[x]
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        for x in range(min(W, r)):
-            s0 += c0[x]
-            s1 += c1[x]
-            s2 += c2[x]
-        for x in range(W):
-            if x + r < W:
-                s0 += c0[x + r]
-                s1 += c1[x + r]
-                s2 += c2[x + r]
-            if x - r - 1 >= 0:
-                s0 -= c0[x - r - 1]
-                s1 -= c1[x - r - 1]
-                s2 -= c2[x - r - 1]
-            h0[x] = s0
-            h1[x] = s1
-            h2[x] = s2
+                    v = np.float64(si[x])
+                    d0[x] += v
+                    d1[x] += v * v
+                    d2[x] += v * ri[x]
+            elif yo >= 0:
+                so, ro = s[yo - ya], ref[yo]
+                for x in range(W):
+                    u = np.float64(so[x])
+                    d0[x] -= u
+                    d1[x] -= u * u
+                    d2[x] -= u * ro[x]
         inv_rows = 1.0 / (min(H, y + r + 1) - max(0, y - r))
         mrow = mr[y]
         vrow = vr[y]
         vld = valid[y - y0]
-        zrow = zn[y - y0]
-        for x in range(W):
-            inv = inv_w[x] * inv_rows
-            ms = h0[x] * inv
-            den = vrow[x] * (h1[x] * inv - ms * ms)
-            z = (h2[x] * inv - mrow[x] * ms) / math.sqrt(max(den, 1e-6))
-            z = z if den > 1e-6 else 0.0
-            zrow[x] = z if vld[x] else -1.0
+        if r == 3:
+            for x in range(W):
+                a0 = c0[x] + c0[x + 1] + c0[x + 2] + c0[x + 3] + c0[x + 4] + c0[x + 5] + c0[x + 6]
+                a1 = c1[x] + c1[x + 1] + c1[x + 2] + c1[x + 3] + c1[x + 4] + c1[x + 5] + c1[x + 6]
+                a2 = c2[x] + c2[x + 1] + c2[x + 2] + c2[x + 3] + c2[x + 4] + c2[x + 5] + c2[x + 6]
+                zrow[x] = _zncc_score(a0, a1, a2, inv_w[x] * inv_rows, mrow[x], vrow[x], vld[x])
+        else:
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for x in range(2 * r):
+                s0 += c0[x]
+                s1 += c1[x]
+                s2 += c2[x]
+            for x in range(W):
+                s0 += c0[x + 2 * r]
+                s1 += c1[x + 2 * r]
+                s2 += c2[x + 2 * r]
+                h0[x] = s0
+                h1[x] = s1
+                h2[x] = s2
+                s0 -= c0[x]
+                s1 -= c1[x]
+                s2 -= c2[x]
+            for x in range(W):
+                zrow[x] = _zncc_score(h0[x], h1[x], h2[x], inv_w[x] * inv_rows, mrow[x], vrow[x], vld[x])
+        for j in range(tops.shape[0]):  # insert into each column's sorted list of the best scores
+            tj = tops[j, y - y0]
+            for x in range(W):
+                hi = max(tj[x], zrow[x])
+                zrow[x] = min(tj[x], zrow[x])
+                tj[x] = hi
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model='numpy')
@@ -455,32 +483,23 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
         rows = y1 - y0
         s = np.empty((yb - ya, W), np.float32)
         valid = np.empty((rows, W), np.bool_)
-        zn = np.empty((n, rows, W), np.float32)
         vol = np.empty((P, rows, W), np.float32)
-        tops = np.empty((k_top, W), np.float32)  # per column, the k_top best scores, descending
-        zc = np.empty(W, np.float32)
+        tops = np.empty((k_top, rows, W), np.float32)  # per pixel, the k_top best scores, descending
+        zrow = np.empty(W, np.float32)
         kb = np.empty(W, np.int64)
         cb = np.empty(W, np.float32)
         c2 = np.empty(W, np.float32)
         for h in range(P):
+            tops[:] = -2.0  # below any ZNCC; finite (fast-math ninf)
             for i in range(n):
                 hs, ws = sizes[i, 0], sizes[i, 1]
                 _warp_rows(srcs[i], hs, ws, a[i], b[i], base, offsets[h], ya, yb, s, valid, y0, y1)
-                _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn[i])
+                _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops)
             for y in range(rows):
-                tops[:] = -2.0  # below any ZNCC; finite (fast-math ninf)
-                for i in range(n):  # insert source i's score into each column's sorted list
-                    zc[:] = zn[i, y]
-                    for j in range(k_top):
-                        tj = tops[j]
-                        for x in range(W):
-                            hi = max(tj[x], zc[x])
-                            zc[x] = min(tj[x], zc[x])
-                            tj[x] = hi
                 vh = vol[h, y]
                 vh[:] = 0.0
                 for j in range(k_top):
-                    tj = tops[j]
+                    tj = tops[j, y]
                     for x in range(W):
                         vh[x] += tj[x]
                 for x in range(W):
