@@ -287,8 +287,15 @@ def _scaled(cam: PinholeCamera, s: float) -> PinholeCamera:
     return cam.scaled(w / cam.width, h / cam.height)
 
 
-def _sweep_and_refine(ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions):
-    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason."""
+def _sweep_and_refine(
+    ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None
+):
+    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason.
+
+    ``window`` (the current sweep's depth window, added after this baseline): whole views only.
+    """
+    if window is not None:
+        raise ValueError('the baseline sweep has no depth window (sweep_window): whole views only')
     H, W = ref.shape
     rho_near, rho_far = 1.0 / near, 1.0 / far
     s = o.sweep_scale
