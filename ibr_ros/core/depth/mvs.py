@@ -324,10 +324,10 @@ def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
             xf = f32(x)
             rho = brow[x] + off
             h2 = a20 * xf + c2 + rho * b2
-            inv = f32(1.0) / h2
+            front = (h2 > tiny) & (rho > zero)
+            inv = f32(1.0) / (h2 if front else f32(1.0))  # finite: no inf/NaN under fast-math
             sx = (a00 * xf + c0 + rho * b0) * inv
             sy = (a10 * xf + c1 + rho * b1) * inv
-            front = (h2 > tiny) & (rho > zero)
             ok[x] = front & (lo <= sx) & (sx <= hx) & (lo <= sy) & (sy <= hy)
             qx = min(max(sx, zero), xmax) if front else zero
             qy = min(max(sy, zero), ymax) if front else zero
@@ -771,6 +771,8 @@ class _Stack:
         """
         base = np.ascontiguousarray(base, dtype=np.float32)
         offsets = np.asarray(offsets, dtype=np.float32).reshape(-1)
+        if not (np.isfinite(base).all() and np.isfinite(offsets).all()):
+            raise ValueError('sweep: base and offsets (inverse depths) must be finite: the kernels assume it')
         with numba.parallel_chunksize(1):
             return _sweep(
                 self.ref, stats[0], stats[1], self.srcs, self.sizes, self.a, self.b, base, offsets,

@@ -16,6 +16,7 @@ from ibr_ros.core.render.config import (
     PAPER_FIELDS,
     RenderConfig,
 )
+from ibr_ros.core.render.holes import fill_small_holes
 from ibr_ros.core.render.projection import (
     intrinsics_vector,
     lands_near,
@@ -76,6 +77,7 @@ __all__ = [
     'bilinear',
     'blend_views',
     'circumscribed_triangles',
+    'fill_small_holes',
     'intrinsics_vector',
     'lands_near',
     'output_camera',

@@ -173,11 +173,11 @@ def blend_views(rgbs, depths, n, ids, inv, pen, zk, fit, rel, view_ids, gain, to
                     e = ew[sel[q], ids[sel[q], y, x]]
                     if q == 0:
                         e_best = e
-                    if e_best > 0.0:  # exp(-(p - p_best) / sigma) as a ratio of the precomputed factors
+                    if e_best > 1e-250:  # exp(-(p - p_best) / sigma) as a ratio of the precomputed factors
                         if e < e_best * stable_floor:
                             break
                         wt = np.float32(gain[sel[q]] * (e / e_best))
-                    else:  # underflow of the factors (penalties thousands of degrees apart)
+                    else:  # factors (nearly) underflowed: penalties many sigmas apart
                         d = (sel_p[q] - sel_p[0]) / sigma
                         if d > _STABLE_CUTOFF:
                             break

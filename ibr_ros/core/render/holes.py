@@ -34,6 +34,8 @@ def fill_small_holes(
     diagonal ones weigh 1/sqrt(2)), its ``source`` and ``depth`` are those of its first known
     neighbour (edge neighbours before diagonal ones).
     """
+    if max_px < 0:
+        raise ValueError(f'fill_small_holes: max_px must be >= 0, got {max_px}')
     h, w = valid.shape
     if rgb.shape != (h, w, 3) or source.shape != (h, w) or depth.shape != (h, w):
         raise ValueError(

@@ -242,6 +242,57 @@ def test_warp_rows_matches_a_float64_reference():
     assert 0 < valid.mean() < 1
 
 
+def _zncc_truncated(ref: np.ndarray, src: np.ndarray, r: int) -> np.ndarray:
+    """Windowed ZNCC by brute force (float64) over (2r+1)^2 boxes truncated at the image border;
+    flat windows (variance product <= 1e-6) score 0."""
+    h, w = ref.shape
+    out = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            a = ref[max(0, y - r) : y + r + 1, max(0, x - r) : x + r + 1].astype(np.float64)
+            b = src[max(0, y - r) : y + r + 1, max(0, x - r) : x + r + 1].astype(np.float64)
+            cov = (a * b).mean() - a.mean() * b.mean()
+            den = a.var() * b.var()
+            out[y, x] = cov / np.sqrt(den) if den > 1e-6 else 0.0
+    return out
+
+
+@pytest.mark.parametrize(('r', 'top_k'), [(1, 1), (2, 2), (3, 1), (3, 2), (3, 3), (4, 2)])
+def test_sweep_kernel_scores_the_mean_of_the_best_sources(r, top_k):
+    """``_sweep`` with an identity warp and one hypothesis: its score is the mean of the ``top_k``
+    best per-source ZNCCs (brute force, truncated boxes), for the 7-pixel window's direct taps and
+    the running sums of the other windows, across strips of 8 rows (the last one partial)."""
+    rng = np.random.default_rng(10 * r + top_k)
+    h, w, n = 37, 45, 3
+    ref = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    srcs = np.stack([ref * rng.uniform(-1, 1) + rng.normal(0, 60, (h, w)) for _ in range(n)])
+    srcs = srcs.astype(np.float32)
+    srcs[1, 10:20, 10:20] = 7.0  # a flat patch: those windows score 0
+    mr, vr = mvs._box_stats(ref, r)
+    sizes = np.array([[h, w]] * n, np.int64)
+    a = np.stack([np.eye(3)] * n)
+    b = np.zeros((n, 3))
+    base = np.full((h, w), 0.1, np.float32)
+    pos, best, second = mvs._sweep(
+        ref, mr, vr, srcs, sizes, a, b, base, np.zeros(1, np.float32), r, top_k, 8, True, 2
+    )
+    # the identity warp, border clamped as the kernel's bilinear lookup (at most W - 1.001, H - 1.001)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    sx, sy = np.minimum(xs, np.float32(w - 1.001)), np.minimum(ys, np.float32(h - 1.001))
+    x0, y0 = sx.astype(int), sy.astype(int)
+    fx, fy = sx - x0, sy - y0
+    warped = [
+        (1 - fy) * (g[y0, x0] + fx * (g[y0, x0 + 1] - g[y0, x0]))
+        + fy * (g[y0 + 1, x0] + fx * (g[y0 + 1, x0 + 1] - g[y0 + 1, x0]))
+        for g in srcs
+    ]
+    z = np.sort(np.stack([_zncc_truncated(ref, g, r) for g in warped]), axis=0)[::-1]
+    want = z[:top_k].mean(axis=0)
+    assert np.abs(best - want).max() < 1e-4
+    assert (pos == 0).all()
+    assert (second == -1).all()  # no hypothesis more than 2 planes away
+
+
 # --------------------------------------------------------------------------------------------- neighbours
 
 

@@ -712,3 +712,39 @@ def test_hole_filling_goes_from_the_rim_inwards() -> None:
     assert (np.abs(rgb[5:15, 10].astype(int) - 120) <= 2).all()  # the middle: the mean of both sides
     with pytest.raises(ValueError, match='depth'):
         fill_small_holes(rgb, valid, source, depth[:-1], max_px=30)
+    with pytest.raises(ValueError, match='max_px'):
+        fill_small_holes(rgb, valid, source, depth, max_px=-1)
+
+
+@pytest.mark.parametrize('seed', range(6))
+def test_hole_filling_fills_exactly_the_small_inner_holes(seed) -> None:
+    """Random masks (wide holes of several rings, rings around rendered islands, holes joined only
+    diagonally): the filled pixels are exactly the 8-connected holes of at most ``max_px`` pixels
+    off the border, each takes its source and depth from a rendered or earlier-filled neighbour
+    and a colour within its neighbours' range; rendered pixels are untouched."""
+    from ibr_ros.core.render.holes import fill_small_holes
+
+    rng = np.random.default_rng(seed)
+    h, w = 48, 64
+    valid = rng.random((h, w)) > 0.25
+    valid[20:30, 20:32] = False  # a wide hole: several rings
+    valid[24:26, 25:27] = True  # with a rendered island
+    valid[5, 5] = valid[6, 6] = False  # two pixels joined diagonally only
+    rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    source = rng.integers(0, 4, (h, w)).astype(np.int16)
+    depth = rng.uniform(1, 50, (h, w)).astype(np.float32)
+    max_px = int(rng.integers(1, 150))
+    _, labels, stats, _ = cv2.connectedComponentsWithStats((~valid).astype(np.uint8), connectivity=8)
+    x, y, bw, bh, area = stats.T
+    inner = (area <= max_px) & (x > 0) & (y > 0) & (x + bw < w) & (y + bh < h)
+    inner[0] = False
+    want = inner[labels]
+    before = (rgb.copy(), valid.copy(), source.copy(), depth.copy())
+    assert fill_small_holes(rgb, valid, source, depth, max_px=max_px) == want.sum()
+    assert np.array_equal(valid, before[1] | want)
+    keep = before[1]
+    assert np.array_equal(rgb[keep], before[0][keep])
+    assert np.array_equal(source[keep], before[2][keep])
+    assert np.array_equal(depth[keep], before[3][keep])
+    assert set(np.unique(source[want])) <= set(np.unique(source[keep]))
+    assert set(np.unique(depth[want])) <= set(np.unique(depth[keep]))
