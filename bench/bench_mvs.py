@@ -49,6 +49,7 @@ from ibr_ros.core.synth import (
     safe_altitude_range,
 )
 from ibr_ros.core.synth.trajectory import TrajectoryKind
+from ibr_ros.io.atomic import write_atomic
 
 TARGET_S = 5.0  # 960x540, 4 neighbours (the script's contract since it was written)
 ISSUE_TARGET_S = 1.5  # 1000x750, 4 neighbours, issue 15
@@ -172,7 +173,7 @@ def real_keyframes(bag: Path, cache: Path) -> tuple[list, np.ndarray, dict]:
     keyframes, cfg, _, sparse = register_keyframes(sub, cfg, None, None)
     kfs = [(k.rgb, k.camera, k.t_wc, k.stamp) for k in keyframes]
     points, observed = sparse.points, sparse.observed
-    cache.write_bytes(pickle.dumps((kfs, points, observed)))
+    write_atomic(cache, pickle.dumps((kfs, points, observed)))  # never a half-written cache
     return kfs, points, observed
 
 
