@@ -3,7 +3,7 @@
 """Sweep-kernel benchmark (issue 15): ``mvs._sweep`` against the kernels before the speed-up.
 
 Baseline in the same process: ``bench/_sweep_kernel_baseline.py`` (``_warp_rows``, ``_zncc_rows``,
-``_sweep`` of main at 169fdec, before round 2); ``--round1`` also times the kernels before round 1
+``_sweep`` of main at cf48d5e, before round 3); ``--round1`` also times the kernels before round 1
 (``_sweep_kernel_baseline_606ef63.py``) for the cumulative ratio. Inputs: the synthetic orbit of
 ``bench_mvs.py`` (seed 1) at 1000x750 and 640x360 with 4 neighbours, and ``--views`` keyframes of
 ``--bag`` (real photos, keyframes and SfM as ``ibr process`` makes them, cached like
@@ -118,8 +118,9 @@ def zncc_check(calls: list[tuple]) -> tuple[float, int]:
         ref, mr, vr, srcs, sizes, a, b, base, offsets, r, _, strip, _, sep = c
         for h in np.unique(np.linspace(0, offsets.size - 1, 6).round().astype(int)):
             for i in range(srcs.shape[0]):
+                bh = base[h : h + 1] if base.ndim == 3 and base.shape[0] > 1 else base  # its own base map
                 sc = [
-                    fn(ref, mr, vr, srcs[i : i + 1], sizes[i : i + 1], a[i : i + 1], b[i : i + 1], base,
+                    fn(ref, mr, vr, srcs[i : i + 1], sizes[i : i + 1], a[i : i + 1], b[i : i + 1], bh,
                        offsets[h : h + 1], r, 1, strip, False, sep)[1]
                     for _, fn in KERNELS
                 ]  # fmt: skip
@@ -159,7 +160,9 @@ def report(
 ) -> bool:
     """Prints one table row per input; True if the output passes the acceptance checks."""
     calls, _ = record(args, kw)
-    kt = kernel_times(calls, runs, KERNELS + ((('r1', round1_kernels._sweep),) if round1 else ()))
+    kt = kernel_times(
+        calls, runs, KERNELS + ((('r1', old_kernels.batched(round1_kernels._sweep)),) if round1 else ())
+    )
     zerr, zvalid = zncc_check(calls)
     pt = pipeline(args, kw, runs)
     close, set_diff = compare(pt['old'][2].depth, pt['new'][2].depth)

@@ -458,7 +458,8 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model='numpy')
 def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, sep):
-    """Score the inverse-depth hypotheses ``base + offsets[k]`` (per-pixel base) for every pixel.
+    """Score the inverse-depth hypotheses ``base[k] + offsets[k]`` (per-pixel bases, ``base`` of
+    shape (1 or len(offsets), H, W): one base for all hypotheses or one each) for every pixel.
 
     Per hypothesis and source: warp, windowed ZNCC; per hypothesis: mean of the ``top_k`` best
     sources. Per pixel returns the winning hypothesis index (with a parabola offset in [-0.5, 0.5]
@@ -470,6 +471,7 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
     H, W = ref.shape
     n = srcs.shape[0]
     P = offsets.shape[0]
+    nb = base.shape[0]
     k_top = min(top_k, n)
     pos = np.empty((H, W), np.float32)
     best = np.empty((H, W), np.float32)
@@ -493,7 +495,8 @@ def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, 
             tops[:] = -2.0  # below any ZNCC; finite (fast-math ninf)
             for i in range(n):
                 hs, ws = sizes[i, 0], sizes[i, 1]
-                _warp_rows(srcs[i], hs, ws, a[i], b[i], base, offsets[h], ya, yb, s, valid, y0, y1)
+                bh = base[h if nb > 1 else 0]
+                _warp_rows(srcs[i], hs, ws, a[i], b[i], bh, offsets[h], ya, yb, s, valid, y0, y1)
                 _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops)
             for y in range(rows):
                 vh = vol[h, y]
@@ -764,13 +767,20 @@ class _Stack:
         return span
 
     def sweep(self, stats, base: NDArray, offsets: ArrayLike, win: int, o: MvsOptions, fit: bool = True):
-        """(position, best, second-best) of :func:`_sweep` for the hypotheses ``base + offsets[k]``.
+        """(position, best, second-best) of :func:`_sweep` for the hypotheses ``base + offsets[k]``
+        (``base``: (H, W) inverse depths) or ``base[k] + offsets[k]`` (``base``: (len(offsets), H, W),
+        several maps scored in one pass over the strips; cheaper than one call each).
 
         Strips are handed out one at a time (dynamic scheduling) so that a thread descheduled on a
         busy machine does not hold the others up.
         """
         base = np.ascontiguousarray(base, dtype=np.float32)
         offsets = np.asarray(offsets, dtype=np.float32).reshape(-1)
+        base = base[None] if base.ndim == 2 else base
+        if base.ndim != 3 or base.shape[0] not in (1, offsets.size) or base.shape[1:] != self.ref.shape:
+            raise ValueError(
+                f'sweep: base of shape {base.shape} for {offsets.size} offsets, image {self.ref.shape}'
+            )
         if not (np.isfinite(base).all() and np.isfinite(offsets).all()):
             raise ValueError('sweep: base and offsets (inverse depths) must be finite: the kernels assume it')
         with numba.parallel_chunksize(1):
@@ -873,21 +883,19 @@ def _sweep_and_refine(
     def up(a: NDArray) -> NDArray:
         return cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if s < 1 else a
 
+    def best_of(stack: _Stack, st, maps: list[NDArray], win: int) -> NDArray:
+        """Per pixel the first of ``maps`` (inverse depths) with the best score, all scored in one
+        sweep (the winner of :func:`_sweep`: first of equal scores; the first map where none scores)."""
+        bases = np.stack(maps).astype(np.float32)
+        pos, _, _ = stack.sweep(st, bases, np.zeros(len(maps)), win, o, False)
+        k = np.maximum(pos, 0).astype(np.intp)
+        return np.take_along_axis(bases, k[None], axis=0)[0]
+
     cands = _candidates(rho_s, s < 1, o.propagation_radius)
     if o.propagate_at_sweep_scale:
-        _, score, _ = coarse.sweep(stats_s, rho_s, [0.0], o.window, o, False)
-        for c in cands:
-            _, sc, _ = coarse.sweep(stats_s, c, [0.0], o.window, o, False)
-            rho_s = np.where(sc > score, c, rho_s)
-            score = np.maximum(sc, score)
-        base = up(rho_s)
+        base = up(best_of(coarse, stats_s, [rho_s, *cands], o.window))
     else:
-        base = up(rho_s)
-        _, score, _ = fine.sweep(stats, base, [0.0], o.refine_window, o, False)
-        for c in map(up, cands):
-            _, sc, _ = fine.sweep(stats, c, [0.0], o.refine_window, o, False)
-            base = np.where(sc > score, c, base)
-            score = np.maximum(sc, score)
+        base = best_of(fine, stats, [up(rho_s), *map(up, cands)], o.refine_window)
     half = 0.5 * step
     pos, score, _ = fine.sweep(
         stats, base, np.arange(-o.refine_steps, o.refine_steps + 1) * half, o.refine_window, o

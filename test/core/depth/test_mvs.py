@@ -272,7 +272,7 @@ def test_sweep_kernel_scores_the_mean_of_the_best_sources(r, top_k):
     sizes = np.array([[h, w]] * n, np.int64)
     a = np.stack([np.eye(3)] * n)
     b = np.zeros((n, 3))
-    base = np.full((h, w), 0.1, np.float32)
+    base = np.full((1, h, w), 0.1, np.float32)
     pos, best, second = mvs._sweep(
         ref, mr, vr, srcs, sizes, a, b, base, np.zeros(1, np.float32), r, top_k, 8, True, 2
     )
@@ -291,6 +291,36 @@ def test_sweep_kernel_scores_the_mean_of_the_best_sources(r, top_k):
     assert np.abs(best - want).max() < 1e-4
     assert (pos == 0).all()
     assert (second == -1).all()  # no hypothesis more than 2 planes away
+
+
+def test_sweep_kernel_with_a_base_per_hypothesis_scores_each_as_alone():
+    """``_sweep`` with one base map per hypothesis (the propagation candidates in one call) scores
+    each as a call of its own would, and its winner is the first best (as the sequential
+    ``np.where(score > best)`` it replaced)."""
+    rng = np.random.default_rng(3)
+    h, w, n, r = 41, 52, 3, 3
+    ref = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    srcs = np.stack([np.roll(ref, k + 1, axis=1) + rng.normal(0, 20, (h, w)) for k in range(n)]).astype(
+        np.float32
+    )
+    mr, vr = mvs._box_stats(ref, r)
+    sizes = np.array([[h, w]] * n, np.int64)
+    a = np.stack([np.eye(3)] * n)
+    b = np.stack([[50.0 * (k + 1), 0.0, 0.0] for k in range(n)])  # disparity 50 (k + 1) rho px
+    bases = rng.uniform(0.0, 0.05, (4, h, w)).astype(np.float32)
+    bases[2, :10] = bases[0, :10]  # equal scores: the first wins
+    offs = np.zeros(4, np.float32)
+    pos, best, _ = mvs._sweep(ref, mr, vr, srcs, sizes, a, b, bases, offs, r, 2, 8, False, 2)
+    alone = np.stack(
+        [
+            mvs._sweep(ref, mr, vr, srcs, sizes, a, b, bases[k : k + 1], offs[:1], r, 2, 8, False, 2)[1]
+            for k in range(4)
+        ]
+    )
+    np.testing.assert_array_equal(best, alone.max(axis=0))
+    want = np.where(alone.max(axis=0) > -1, np.argmax(alone, axis=0), -1)
+    np.testing.assert_array_equal(pos, want)
+    assert (pos[:7] != 2).all()  # windows within the equal rows
 
 
 # --------------------------------------------------------------------------------------------- neighbours
