@@ -1,16 +1,15 @@
 # SPDX-FileCopyrightText: the ibr_ros developers
 # SPDX-License-Identifier: BSD-3-Clause
 """The sweep kernels of :mod:`ibr_ros.core.depth.mvs` before the first kernel speed-up (main at
-606ef63): ``_warp_rows``, ``_zncc_rows`` and ``_sweep`` verbatim, the round-1 baseline of
-``bench_sweep_kernel.py --round1`` (cumulative ratio). :func:`_sweep` has the signature of
-``mvs._sweep``. Not used by the package.
+606ef63): ``_warp_rows`` and ``_sweep`` verbatim, the round-1 baseline of ``bench_sweep_kernel.py
+--round1`` (cumulative ratio); ``_zncc_rows`` had not changed since ``_mvs_baseline``'s (22d1ab2) and
+is that one. :func:`_sweep` has the signature of ``mvs._sweep``. Not used by the package.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+from _mvs_baseline import _zncc_rows  # unchanged from 22d1ab2 to 606ef63
 from numba import njit, prange
 
 
@@ -57,65 +56,6 @@ def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
             out[y - ya, x] = top + (py[x] - yi) * (bot - top)
         if y0 <= y < y1:
             valid[y - y0, :] = ok
-
-
-@njit(cache=True, fastmath=True)
-def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zn):
-    """Windowed ZNCC of the warped rows ``s`` (from row ``ya``) against the reference, rows y0:y1.
-
-    Running column and row sums (float64) over (2r+1)^2 boxes truncated at the image border, the
-    same boxes as :func:`_box_stats`. Invalid centres score -1, flat source windows 0.
-    """
-    H, W = ref.shape
-    c0 = np.zeros(W)
-    c1 = np.zeros(W)
-    c2 = np.zeros(W)
-    for yy in range(max(0, y0 - r), min(H, y0 + r + 1)):
-        for x in range(W):
-            v = np.float64(s[yy - ya, x])
-            c0[x] += v
-            c1[x] += v * v
-            c2[x] += v * ref[yy, x]
-    for y in range(y0, y1):
-        if y > y0:
-            yy = y + r
-            if yy < H:
-                for x in range(W):
-                    v = np.float64(s[yy - ya, x])
-                    c0[x] += v
-                    c1[x] += v * v
-                    c2[x] += v * ref[yy, x]
-            yy = y - r - 1
-            if yy >= 0:
-                for x in range(W):
-                    v = np.float64(s[yy - ya, x])
-                    c0[x] -= v
-                    c1[x] -= v * v
-                    c2[x] -= v * ref[yy, x]
-        nrow = min(H, y + r + 1) - max(0, y - r)
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        for x in range(min(W, r)):
-            s0 += c0[x]
-            s1 += c1[x]
-            s2 += c2[x]
-        for x in range(W):
-            if x + r < W:
-                s0 += c0[x + r]
-                s1 += c1[x + r]
-                s2 += c2[x + r]
-            if x - r - 1 >= 0:
-                s0 -= c0[x - r - 1]
-                s1 -= c1[x - r - 1]
-                s2 -= c2[x - r - 1]
-            z = -1.0
-            if valid[y - y0, x]:
-                inv = 1.0 / (nrow * (min(W, x + r + 1) - max(0, x - r)))
-                ms = s0 * inv
-                den = vr[y, x] * (s1 * inv - ms * ms)
-                z = (s2 * inv - mr[y, x] * ms) / math.sqrt(den) if den > 1e-6 else 0.0
-            zn[y - y0, x] = z
 
 
 @njit(cache=True, parallel=True)
