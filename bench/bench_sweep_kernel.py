@@ -3,7 +3,8 @@
 """Sweep-kernel benchmark (issue 15): ``mvs._sweep`` against the kernels before the speed-up.
 
 Baseline in the same process: ``bench/_sweep_kernel_baseline.py`` (``_warp_rows``, ``_zncc_rows``,
-``_sweep`` of main at cf48d5e, before round 3); ``--round1`` also times the kernels before round 1
+``_sweep`` of main at cf48d5e, before round 3, float64 sums; round 3 gave the same output, round 4
+sums in float32); ``--round1`` also times the kernels before round 1
 (``_sweep_kernel_baseline_606ef63.py``) for the cumulative ratio. Inputs: the synthetic orbit of
 ``bench_mvs.py`` (seed 1) at 1000x750 and 640x360 with 4 neighbours, and ``--views`` keyframes of
 ``--bag`` (real photos, keyframes and SfM as ``ibr process`` makes them, cached like
@@ -16,12 +17,14 @@ Per input:
   threads) and wall time, split into the sweep over all planes ("planes", calls with more than 8
   hypotheses) and the full-resolution hypotheses ("refine"); new / old is the claim.
 * **ZNCC**: each source alone (``top_k`` 1, one hypothesis: the score is that source's ZNCC) at 6
-  hypotheses of the plane sweep and the first refinement call, new against old: largest absolute
-  difference where both score, and pixels whose validity differs.
+  hypotheses of the plane sweep and the first refinement call, new against old, at the reference
+  pixels textured enough for a depth: the difference exceeded by 0.2 % of the pixels where both
+  score, the share beyond 1e-3, and the share whose validity differs.
 * **pipeline**: ``mvs_depth`` with each kernel (alternately, timed the same way) and its depth maps
-  compared: the share of pixels with depth in both within 1e-4 (relative), the share of all pixels
+  compared: the share of pixels with depth in both within 1e-3 (relative), the share of all pixels
   that have depth in one only, and accuracy / completeness (synthetic: within 5 % of the ground
   truth / with a depth; real: pixels with depth / SfM points with depth / within 5 % of them).
+  Acceptance: :data:`MAX_ZNCC_ERR` and the limits next to it.
 
 The machine is shared: the 1-minute load average is printed; compare ratios, not seconds.
 """
@@ -49,9 +52,15 @@ import numpy as np
 from ibr_ros.core.depth import mvs
 
 KERNELS: tuple[tuple[str, Callable[..., Any]], ...] = (('old', old_kernels._sweep), ('new', mvs._sweep))
-#: Acceptance: depth equal within REL_TOL on >= MIN_CLOSE of the pixels where both have one, the
-#: pixels with depth differing on <= MAX_SET_DIFF of all pixels, ZNCC within MAX_ZNCC_ERR.
-REL_TOL, MIN_CLOSE, MAX_SET_DIFF, MAX_ZNCC_ERR = 1e-4, 0.999, 0.001, 1e-3
+#: Acceptance (the new kernel sums in float32 since issue 15's fourth round, the old one in float64,
+#: so a winner-takes-all pick flips where two planes score within float32 noise): the single-source
+#: ZNCC at textured reference pixels within MAX_ZNCC_ERR on all but ZNCC_OUTLIERS of those where
+#: both score, the validity (-1: nothing scored) differing on <= ZNCC_OUTLIERS of them (the new
+#: kernel scores source windows flatter than mvs._MIN_SOURCE_VAR 0); the pixels with depth
+#: differing on <= MAX_SET_DIFF of all pixels; each quality number within MAX_QUALITY_DIFF. The
+#: share of common depth within REL_TOL (relative) is printed, not judged.
+REL_TOL, MAX_SET_DIFF = 1e-3, 0.002
+MAX_ZNCC_ERR, ZNCC_OUTLIERS, MAX_QUALITY_DIFF = 1e-3, 0.002, 0.002
 
 
 def record(args: tuple, kw: dict) -> tuple[list[tuple], mvs.MvsResult]:
@@ -109,10 +118,13 @@ def kernel_times(
     return out
 
 
-def zncc_check(calls: list[tuple]) -> tuple[float, int]:
-    """(largest |ZNCC new - old| where both score, pixels whose validity differs) over single
-    sources at 6 hypotheses of the plane sweep and the first full-resolution call."""
-    err, n_valid = 0.0, 0
+def zncc_check(calls: list[tuple]) -> tuple[float, float, float]:
+    """(|ZNCC new - old| exceeded by ZNCC_OUTLIERS of the pixels where both score, the share of those
+    beyond MAX_ZNCC_ERR, the share of pixels whose validity differs) over single sources at 6
+    hypotheses of the plane sweep and the first full-resolution call, at the reference pixels
+    textured enough for a depth (``min_std``)."""
+    diffs: list[np.ndarray] = []
+    n_valid = n_all = 0
     picks = [c for c in calls if c[8].size > 8][:1] + [c for c in calls if c[8].size <= 8][:1]
     for c in picks:
         ref, mr, vr, srcs, sizes, a, b, base, offsets, r, _, strip, _, sep = c
@@ -124,11 +136,13 @@ def zncc_check(calls: list[tuple]) -> tuple[float, int]:
                        offsets[h : h + 1], r, 1, strip, False, sep)[1]
                     for _, fn in KERNELS
                 ]  # fmt: skip
-                both = (sc[0] > -1) & (sc[1] > -1)
-                n_valid += int(((sc[0] > -1) != (sc[1] > -1)).sum())
-                if both.any():
-                    err = max(err, float(np.abs(sc[0][both] - sc[1][both]).max()))
-    return err, n_valid
+                textured = vr >= mvs.MvsOptions().min_std ** 2  # the others get no depth (min_std)
+                both = (sc[0] > -1) & (sc[1] > -1) & textured
+                n_valid += int(((sc[0] > -1) != (sc[1] > -1))[textured].sum())
+                n_all += int(textured.sum())
+                diffs.append(np.abs(sc[0][both] - sc[1][both]))
+    d = np.concatenate(diffs)
+    return float(np.quantile(d, 1 - ZNCC_OUTLIERS)), float((d > MAX_ZNCC_ERR).mean()), n_valid / n_all
 
 
 def compare(d_old: np.ndarray, d_new: np.ndarray) -> tuple[float, float]:
@@ -163,11 +177,17 @@ def report(
     kt = kernel_times(
         calls, runs, KERNELS + ((('r1', old_kernels.batched(round1_kernels._sweep)),) if round1 else ())
     )
-    zerr, zvalid = zncc_check(calls)
+    zerr, zout, zvalid = zncc_check(calls)
     pt = pipeline(args, kw, runs)
     close, set_diff = compare(pt['old'][2].depth, pt['new'][2].depth)
     q_old, q_new = quality(pt['old'][2].depth), quality(pt['new'][2].depth)
-    ok = close >= MIN_CLOSE and set_diff <= MAX_SET_DIFF and zerr < MAX_ZNCC_ERR and q_old == q_new
+    q_diff = max(
+        abs(float(a) - float(b)) for a, b in zip(q_old.split(' / '), q_new.split(' / '), strict=True)
+    )
+    ok = (
+        set_diff <= MAX_SET_DIFF and q_diff <= MAX_QUALITY_DIFF
+        and zout <= ZNCC_OUTLIERS and zvalid <= ZNCC_OUTLIERS
+    )  # fmt: skip
 
     def ratio(d: dict[str, tuple[float, float]] | dict[str, tuple[float, float, Any]]) -> str:
         return f'{d["new"][1] / d["old"][1]:.2f} ({d["new"][0] / d["old"][0]:.2f})'
@@ -175,7 +195,7 @@ def report(
     print(
         f'| {name} | {pt["new"][2].n_planes} | {kt["all"]["old"][1]:.2f} | {kt["all"]["new"][1]:.2f} | '
         f'{ratio(kt["planes"])} | {ratio(kt["refine"])} | {ratio(kt["all"])} | '
-        f'{pt["old"][1]:.2f} | {pt["new"][1]:.2f} | {ratio(pt)} | {zerr:.1e} / {zvalid} | '
+        f'{pt["old"][1]:.2f} | {pt["new"][1]:.2f} | {ratio(pt)} | {zerr:.1e} / {zout:.4f} / {zvalid:.4f} | '
         f'{close:.5f} | {set_diff:.5f} | {q_old} | {q_new} | {"ok" if ok else "DIFFERS"} |'
         + (f' {kt["all"]["new"][1] / kt["all"]["r1"][1]:.2f} |' if round1 else ''),
         flush=True,
@@ -201,8 +221,9 @@ def main() -> int:
     )
     print(
         '| input | planes | old kernel CPU s | new kernel CPU s | planes new/old CPU (wall) '
-        '| refine new/old | kernel new/old | old mvs_depth CPU s | new mvs_depth CPU s '
-        '| mvs_depth new/old | ZNCC max diff / validity diffs | depth within 1e-4 | depth set differs '
+        '| refine new/old | kernel new/old | old mvs_depth CPU s | new mvs_depth CPU s | mvs_depth new/old '
+        f'| ZNCC diff at {1 - ZNCC_OUTLIERS:.1%} / share > {MAX_ZNCC_ERR:g} / validity differs '
+        f'| depth within {REL_TOL:g} | depth set differs '
         '| quality old | quality new | check |' + (' kernel new / before round 1 CPU |' if a.round1 else '')
     )
     print('| --- ' * (17 if a.round1 else 16) + '|')

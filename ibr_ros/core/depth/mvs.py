@@ -74,12 +74,14 @@ __all__ = [
     'MvsOptions',
     'MvsResult',
     'MvsView',
+    'PlaneSweep',
     'check_camera',
     'compute_depth_maps',
     'depth_range_from_points',
     'geometric_filter',
     'in_view_pixels',
     'mvs_depth',
+    'plane_sweep',
     'probe_points',
     'select_neighbours',
 ]
@@ -93,6 +95,11 @@ REASON_NO_PARALLAX = 'no_parallax'
 REASON_NO_DEPTH_RANGE = 'no_depth_range'
 
 _STRIP_ROWS = 32  # rows per parallel work item of _sweep
+#: Grey level subtracted from the images the sweep kernels see: their float32 box sums stay small.
+_GREY_CENTRE = 128.0
+#: Source windows with a variance below this (grey levels^2) score 0 in the sweep kernels: no
+#: texture to correlate (and float32 box sums cannot resolve it).
+_MIN_SOURCE_VAR = 0.05
 
 #: Pixel lattice (per side) of :func:`select_neighbours`' probe points without sparse points.
 PROBE_GRID = 9
@@ -217,6 +224,27 @@ class MvsOptions:
 
 
 @dataclass(frozen=True, eq=False)
+class PlaneSweep:
+    """Step 1 of :func:`mvs_depth` for one reference view: the plane sweep that steps 2-3 refine,
+    with these or other source views (:func:`mvs_depth`'s ``plane_sweep``).
+
+    ``rho``: float32 inverse z-depth (1/m) of each pixel's winning plane at the sweep scale, 0 where
+    nothing scored; ``rejected``: bool, the same pixels' ambiguous or out-of-range winners;
+    ``step``: inverse depth between planes (1/m); ``n_planes``: planes of the whole sweep; ``far``:
+    its far end (m); ``size``: the view's (width, height) in pixels; ``propagated``: the inverse
+    depth after propagation at the sweep scale (``propagate_at_sweep_scale``), else None.
+    """
+
+    rho: NDArray[np.float32]
+    rejected: NDArray[np.bool_]
+    step: float
+    n_planes: int
+    far: float
+    size: tuple[int, int]
+    propagated: NDArray[np.float32] | None = None
+
+
+@dataclass(frozen=True, eq=False)
 class MvsResult:
     """Depth of one reference view.
 
@@ -225,7 +253,8 @@ class MvsResult:
     (0 before :func:`geometric_filter`); ``photometric_depth``: the depth before the geometric
     filter; ``neighbours``: the source views used (indices into the caller's list); ``reason``: ''
     or why the depth is all zero (``REASON_*``); ``depth_range``: the (near, far) swept, metres;
-    ``n_planes``: the number of planes swept (0 when none were).
+    ``n_planes``: the number of planes swept (0 when none were); ``plane_sweep``: step 1 of the
+    sweep (None when none ran).
     """
 
     depth: NDArray[np.float32]
@@ -236,6 +265,7 @@ class MvsResult:
     reason: str = ''
     depth_range: tuple[float, float] = (0.0, 0.0)
     n_planes: int = 0
+    plane_sweep: PlaneSweep | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -250,7 +280,7 @@ class MvsView:
 # --------------------------------------------------------------------------------------------- kernels
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _box_stats(img, r):
     """Window mean and variance of ``img`` over (2r+1)^2 boxes truncated at the image border."""
     H, W = img.shape
@@ -351,13 +381,15 @@ def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
 
 @njit(inline='always')
 def _zncc_score(h0, h1, h2, inv, m, v, ok):
-    """ZNCC of one window from its source sums ``h0``, ``h1``, ``h2`` (sum, sum of squares, sum of
-    products with the reference), 1 / its area, the reference mean ``m`` and variance ``v``."""
+    """ZNCC (float32, clamped to [-1, 1]) of one window from its source sums ``h0``, ``h1``, ``h2``
+    (sum, sum of squares, sum of products with the reference), 1 / its area, the reference mean
+    ``m`` and variance ``v``; 0 where the source window's variance is below ``_MIN_SOURCE_VAR``."""
+    f32 = np.float32
     ms = h0 * inv
-    den = v * (h1 * inv - ms * ms)
-    z = (h2 * inv - m * ms) / math.sqrt(max(den, 1e-6))
-    z = z if den > 1e-6 else 0.0
-    return z if ok else -1.0
+    vs = h1 * inv - ms * ms
+    z = (h2 * inv - m * ms) / math.sqrt(max(v * vs, f32(1e-6)))
+    z = min(max(z, f32(-1.0)), f32(1.0)) if vs > f32(_MIN_SOURCE_VAR) else f32(0.0)
+    return z if ok else f32(-1.0)
 
 
 @njit(cache=True, fastmath=_FASTMATH, error_model='numpy')
@@ -365,30 +397,33 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
     """Windowed ZNCC of the warped rows ``s`` (from row ``ya``) against the reference, rows y0:y1,
     inserted into ``tops`` (k, y1 - y0, W: per pixel the k best scores so far, descending).
 
-    Running column sums (float64; one pass per row adds the entering and subtracts the leaving row)
-    over (2r+1)^2 boxes truncated at the image border, the same boxes as :func:`_box_stats`; invalid
-    centres score -1, flat source windows 0. The column sums have r zero columns each side (the
+    Running column sums (float32 over grey levels centred on ``_GREY_CENTRE``: about 1e-6 relative
+    error over a strip; one pass per row adds the entering and subtracts the leaving row) over
+    (2r+1)^2 boxes truncated at the image border, the same boxes as :func:`_box_stats`; ``ref``,
+    ``s`` and the reference means ``mr`` centred, ``mr`` and ``vr`` float32. Invalid centres score
+    -1, flat source windows 0. The column sums have r zero columns each side (the
     loops index the views ``d*`` by x: an offset index kept them from vectorising); for r = 3
     (7-pixel windows) the row sums are 7 direct taps in the loop that computes the scores
     (vectorised), otherwise serial running sums into row buffers. ``zrow``: float32, W scores.
     """
     H, W = ref.shape
     Wp = W + 2 * r
-    c0 = np.zeros(Wp)  # column sums, column x at x + r
-    c1 = np.zeros(Wp)
-    c2 = np.zeros(Wp)
+    f32 = np.float32
+    c0 = np.zeros(Wp, f32)  # column sums, column x at x + r
+    c1 = np.zeros(Wp, f32)
+    c2 = np.zeros(Wp, f32)
     d0, d1, d2 = c0[r : r + W], c1[r : r + W], c2[r : r + W]  # (indexed by x: loops that vectorise)
-    h0 = np.empty(W)
-    h1 = np.empty(W)
-    h2 = np.empty(W)
-    inv_w = np.empty(W)  # 1 / box width at each column
+    h0 = np.empty(W, f32)
+    h1 = np.empty(W, f32)
+    h2 = np.empty(W, f32)
+    inv_w = np.empty(W, f32)  # 1 / box width at each column
     for x in range(W):
-        inv_w[x] = 1.0 / (min(W, x + r + 1) - max(0, x - r))
+        inv_w[x] = f32(1.0) / f32(min(W, x + r + 1) - max(0, x - r))
     for yy in range(max(0, y0 - r), min(H, y0 + r + 1)):
         srow = s[yy - ya]
         rrow = ref[yy]
         for x in range(W):
-            v = np.float64(srow[x])
+            v = srow[x]
             d0[x] += v
             d1[x] += v * v
             d2[x] += v * rrow[x]
@@ -399,26 +434,26 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
                 si, so = s[yi - ya], s[yo - ya]
                 ri, ro = ref[yi], ref[yo]
                 for x in range(W):
-                    v = np.float64(si[x])
-                    u = np.float64(so[x])
+                    v = si[x]
+                    u = so[x]
                     d0[x] += v - u
                     d1[x] += v * v - u * u
                     d2[x] += v * ri[x] - u * ro[x]
             elif yi < H:
                 si, ri = s[yi - ya], ref[yi]
                 for x in range(W):
-                    v = np.float64(si[x])
+                    v = si[x]
                     d0[x] += v
                     d1[x] += v * v
                     d2[x] += v * ri[x]
             elif yo >= 0:
                 so, ro = s[yo - ya], ref[yo]
                 for x in range(W):
-                    u = np.float64(so[x])
+                    u = so[x]
                     d0[x] -= u
                     d1[x] -= u * u
                     d2[x] -= u * ro[x]
-        inv_rows = 1.0 / (min(H, y + r + 1) - max(0, y - r))
+        inv_rows = f32(1.0) / f32(min(H, y + r + 1) - max(0, y - r))
         mrow = mr[y]
         vrow = vr[y]
         vld = valid[y - y0]
@@ -429,9 +464,9 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
                 a2 = c2[x] + c2[x + 1] + c2[x + 2] + c2[x + 3] + c2[x + 4] + c2[x + 5] + c2[x + 6]
                 zrow[x] = _zncc_score(a0, a1, a2, inv_w[x] * inv_rows, mrow[x], vrow[x], vld[x])
         else:
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
+            s0 = f32(0.0)
+            s1 = f32(0.0)
+            s2 = f32(0.0)
             for x in range(2 * r):
                 s0 += c0[x]
                 s1 += c1[x]
@@ -456,7 +491,7 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
                 tj[x] = hi
 
 
-@njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model='numpy')
+@njit(cache=True, parallel=True, nogil=True, fastmath=_FASTMATH, error_model='numpy')
 def _sweep(ref, mr, vr, srcs, sizes, a, b, base, offsets, r, top_k, strip, fit, sep):
     """Score the inverse-depth hypotheses ``base[k] + offsets[k]`` (per-pixel bases, ``base`` of
     shape (1 or len(offsets), H, W): one base for all hypotheses or one each) for every pixel.
@@ -739,6 +774,8 @@ class _Stack:
 
     def __init__(self, ref, ref_cam: PinholeCamera, t_wr, greys, cams, t_ws) -> None:
         self.ref = ref
+        self._ref_c = ref - np.float32(_GREY_CENTRE)  # the kernels' input
+        self._stats: dict[int, tuple[NDArray, ...]] = {}
         n = len(greys)
         self.srcs = np.zeros((n, max(g.shape[0] for g in greys), max(g.shape[1] for g in greys)), np.float32)
         self.sizes = np.zeros((n, 2), np.int64)
@@ -746,7 +783,7 @@ class _Stack:
         self.b = np.empty((n, 3))
         k_inv = np.linalg.inv(ref_cam.k)
         for i, (g, c, t) in enumerate(zip(greys, cams, t_ws)):
-            self.srcs[i, : g.shape[0], : g.shape[1]] = g
+            self.srcs[i, : g.shape[0], : g.shape[1]] = g - np.float32(_GREY_CENTRE)  # kernels' input
             self.sizes[i] = g.shape
             r, tt = _relative(t_wr, t)
             self.a[i] = c.k @ r @ k_inv
@@ -766,10 +803,20 @@ class _Stack:
                 span = max(span, float(np.linalg.norm(d, axis=0).max()))
         return span
 
-    def sweep(self, stats, base: NDArray, offsets: ArrayLike, win: int, o: MvsOptions, fit: bool = True):
-        """(position, best, second-best) of :func:`_sweep` for the hypotheses ``base + offsets[k]``
-        (``base``: (H, W) inverse depths) or ``base[k] + offsets[k]`` (``base``: (len(offsets), H, W),
-        several maps scored in one pass over the strips; cheaper than one call each).
+    def box_stats(self, win: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The reference's mean and variance (float64) over ``win`` x ``win`` windows (computed once)."""
+        if win not in self._stats:
+            mean, var = _box_stats(self.ref, win // 2)
+            c = np.float32(_GREY_CENTRE)
+            self._stats[win] = (mean, var, (mean - c).astype(np.float32), var.astype(np.float32))
+        mean, var = self._stats[win][:2]
+        return mean, var
+
+    def sweep(self, base: NDArray, offsets: ArrayLike, win: int, o: MvsOptions, fit: bool = True):
+        """(position, best, second-best) of :func:`_sweep` with ``win`` x ``win`` windows for the
+        hypotheses ``base + offsets[k]`` (``base``: (H, W) inverse depths) or ``base[k] + offsets[k]``
+        (``base``: (len(offsets), H, W), several maps scored in one pass over the strips; cheaper
+        than one call each).
 
         Strips are handed out one at a time (dynamic scheduling) so that a thread descheduled on a
         busy machine does not hold the others up.
@@ -783,9 +830,11 @@ class _Stack:
             )
         if not (np.isfinite(base).all() and np.isfinite(offsets).all()):
             raise ValueError('sweep: base and offsets (inverse depths) must be finite: the kernels assume it')
+        self.box_stats(win)
+        mean, var = self._stats[win][2:]
         with numba.parallel_chunksize(1):
             return _sweep(
-                self.ref, stats[0], stats[1], self.srcs, self.sizes, self.a, self.b, base, offsets,
+                self._ref_c, mean, var, self.srcs, self.sizes, self.a, self.b, base, offsets,
                 win // 2, o.top_k, _STRIP_ROWS, fit, 2,
             )  # fmt: skip
 
@@ -813,10 +862,23 @@ def _candidates(rho_s: NDArray[np.float32], shifts: bool, radius: int) -> list[N
     return cands
 
 
-def _sweep_and_refine(
+def _scaled_stack(ref, ref_cam: PinholeCamera, t_wr, greys, cams, t_ws, sc: float) -> _Stack:
+    """The :class:`_Stack` of the images resized by ``sc`` (area interpolation; as given at 1)."""
+    if sc >= 1:
+        return _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
+    cam_s = _scaled(ref_cam, sc)
+    cams_s = [_scaled(c, sc) for c in cams]
+    ref_s = cv2.resize(ref, (cam_s.width, cam_s.height), interpolation=cv2.INTER_AREA)
+    greys_s = [
+        cv2.resize(g, (c.width, c.height), interpolation=cv2.INTER_AREA) for g, c in zip(greys, cams_s)
+    ]
+    return _Stack(ref_s, cam_s, t_wr, greys_s, cams_s, t_ws)
+
+
+def _plane_sweep(
     ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None
-):
-    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason.
+) -> PlaneSweep | str:
+    """Step 1 of the module docstring on checked grey images: the :class:`PlaneSweep` or a reason.
 
     ``window``: (near, far) z-depths: only the planes of the sweep over (near, far) that lie within
     it, and 2 more each side, are swept (``coarse_band`` 0 only).
@@ -824,42 +886,27 @@ def _sweep_and_refine(
     H, W = ref.shape
     rho_near, rho_far = 1.0 / near, 1.0 / far
     s = o.sweep_scale
-
-    def stack(sc: float) -> _Stack:
-        if sc >= 1:
-            return _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
-        cam_s = _scaled(ref_cam, sc)
-        cams_s = [_scaled(c, sc) for c in cams]
-        ref_s = cv2.resize(ref, (cam_s.width, cam_s.height), interpolation=cv2.INTER_AREA)
-        greys_s = [
-            cv2.resize(g, (c.width, c.height), interpolation=cv2.INTER_AREA) for g, c in zip(greys, cams_s)
-        ]
-        return _Stack(ref_s, cam_s, t_wr, greys_s, cams_s, t_ws)
-
-    coarse = stack(s)
-    fine = stack(1.0) if s < 1 else coarse
+    coarse = _scaled_stack(ref, ref_cam, t_wr, greys, cams, t_ws, s)
     span = coarse.disparity_span((rho_near, rho_far))
     if span < 1.0:
         return REASON_NO_PARALLAX
     n_planes = o.n_planes or int(min(max(math.ceil(span / o.plane_step_px) + 1, o.min_planes), o.max_planes))
     step = (rho_far - rho_near) / (n_planes - 1)
 
-    # 1. sweep: every plane at sweep_scale, or (coarse_band) every second plane at half of it, then
-    # each pixel's winner +- coarse_band planes at sweep_scale
+    # every plane at sweep_scale, or (coarse_band) every second plane at half of it, then each
+    # pixel's winner +- coarse_band planes at sweep_scale
     hc, wc = coarse.ref.shape
-    stats_s = _box_stats(coarse.ref, o.window // 2)
     if o.coarse_band > 0 and min(hc, wc) >= 16:
-        top = stack(0.5 * s)
+        top = _scaled_stack(ref, ref_cam, t_wr, greys, cams, t_ws, 0.5 * s)
         n_top = max(3, (n_planes + 2) // 2)
         step_top = (rho_far - rho_near) / (n_top - 1)
         planes = rho_near + step_top * np.arange(n_top)
-        stats_t = _box_stats(top.ref, o.window // 2)
-        pos, best, second = top.sweep(stats_t, np.zeros(top.ref.shape), planes, o.window, o)
+        pos, best, second = top.sweep(np.zeros(top.ref.shape), planes, o.window, o)
         rho_t = np.where(pos >= 0, rho_near + pos * step_top, 0.0).astype(np.float32)
         bad_t = ((pos < 0.5) | (pos > n_top - 1.5) | (best - second < o.min_margin)).astype(np.uint8)
         base = cv2.resize(rho_t, (wc, hc), interpolation=cv2.INTER_NEAREST)
         band = o.coarse_band
-        pos, _, _ = coarse.sweep(stats_s, base, np.arange(-band, band + 1) * step, o.window, o)
+        pos, _, _ = coarse.sweep(base, np.arange(-band, band + 1) * step, o.window, o)
         rho_s = np.where(pos >= 0, base + (pos - band) * np.float32(step), 0.0).astype(np.float32)
         bad_s = cv2.resize(bad_t, (wc, hc), interpolation=cv2.INTER_NEAREST).astype(bool) | (pos < 0)
     else:
@@ -873,50 +920,76 @@ def _sweep_and_refine(
                 k0 = max(0, min(k0, k1 - 4, n_planes - 5))
                 k1 = min(n_planes - 1, k0 + 4)
         planes = rho_near + step * np.arange(k0, k1 + 1)
-        pos, best, second = coarse.sweep(stats_s, np.zeros(coarse.ref.shape), planes, o.window, o)
+        pos, best, second = coarse.sweep(np.zeros(coarse.ref.shape), planes, o.window, o)
         rho_s = np.where(pos >= 0, rho_near + (pos + k0) * step, 0.0).astype(np.float32)
         bad_s = (pos < 0.5) | (pos > len(planes) - 1.5) | (best - second < o.min_margin)
+    propagated = None
+    if o.propagate_at_sweep_scale:
+        propagated = _best_of(coarse, [rho_s, *_candidates(rho_s, s < 1, o.propagation_radius)], o.window, o)
+    return PlaneSweep(rho_s, bad_s, step, n_planes, far, (W, H), propagated)
 
-    # 2. propagate (at sweep_scale or full resolution), refine at full resolution
-    stats = _box_stats(ref, o.refine_window // 2)
+
+def _best_of(stack: _Stack, maps: list[NDArray], win: int, o: MvsOptions) -> NDArray[np.float32]:
+    """Per pixel the first of ``maps`` (inverse depths) with the best score, all scored in one sweep
+    (the winner of :func:`_sweep`: first of equal scores; the first map where none scores)."""
+    bases = np.stack(maps, dtype=np.float32)
+    pos, _, _ = stack.sweep(bases, np.zeros(len(maps)), win, o, False)
+    k = np.maximum(pos, 0).astype(np.intp)
+    return np.take_along_axis(bases, k[None], axis=0)[0]
+
+
+def _sweep_and_refine(
+    ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None,
+    plane_sweep: PlaneSweep | None = None, box: tuple[int, int, int, int] | None = None,
+):  # fmt: skip
+    """Steps 1-3 of the module docstring on checked grey images: (depth, score, plane sweep) or a
+    reason. ``plane_sweep``: step 1's result (of any sources) instead of sweeping; ``box``: (x0, y0,
+    x1, y1), steps 2-3 within this pixel box only (depth and score of the box's size).
+    """
+    ps = plane_sweep or _plane_sweep(ref, ref_cam, t_wr, greys, cams, t_ws, near, far, o, window)
+    if isinstance(ps, str):
+        return ps
+    H, W = ref.shape
+    x0, y0, x1, y1 = box or (0, 0, W, H)
+    low = ps.rho.shape != (H, W)  # swept below full resolution
 
     def up(a: NDArray) -> NDArray:
-        return cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if s < 1 else a
+        return (cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if low else a)[y0:y1, x0:x1]
 
-    def best_of(stack: _Stack, st, maps: list[NDArray], win: int) -> NDArray:
-        """Per pixel the first of ``maps`` (inverse depths) with the best score, all scored in one
-        sweep (the winner of :func:`_sweep`: first of equal scores; the first map where none scores)."""
-        bases = np.stack(maps).astype(np.float32)
-        pos, _, _ = stack.sweep(st, bases, np.zeros(len(maps)), win, o, False)
-        k = np.maximum(pos, 0).astype(np.intp)
-        return np.take_along_axis(bases, k[None], axis=0)[0]
+    if box is not None:
+        kk = ref_cam.k.copy()
+        kk[0, 2] -= x0
+        kk[1, 2] -= y0
+        ref, ref_cam = np.ascontiguousarray(ref[y0:y1, x0:x1]), PinholeCamera(x1 - x0, y1 - y0, kk)
 
-    cands = _candidates(rho_s, s < 1, o.propagation_radius)
-    if o.propagate_at_sweep_scale:
-        base = up(best_of(coarse, stats_s, [rho_s, *cands], o.window))
+    # 2. propagate (at sweep_scale, done in step 1, or full resolution), refine at full resolution
+    fine = _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
+    if ps.propagated is not None:
+        base = up(ps.propagated)
     else:
-        base = best_of(fine, stats, [up(rho_s), *map(up, cands)], o.refine_window)
-    half = 0.5 * step
+        cands = _candidates(ps.rho, low, o.propagation_radius)
+        base = _best_of(fine, [up(ps.rho), *map(up, cands)], o.refine_window, o)
+    half = 0.5 * ps.step
     pos, score, _ = fine.sweep(
-        stats, base, np.arange(-o.refine_steps, o.refine_steps + 1) * half, o.refine_window, o
+        base, np.arange(-o.refine_steps, o.refine_steps + 1) * half, o.refine_window, o
     )
     valid = pos >= 0
     rho = base + (pos - o.refine_steps) * np.float32(half)
     for _ in range(o.surface_passes):
         base = cv2.medianBlur(np.where(valid, rho, 0).astype(np.float32), 5)
         k = o.surface_steps
-        pos, score, _ = fine.sweep(stats, base, np.arange(-k, k + 1) * 0.25 * half, o.refine_window, o)
+        pos, score, _ = fine.sweep(base, np.arange(-k, k + 1) * 0.25 * half, o.refine_window, o)
         valid &= pos >= 0
         rho = base + (pos - k) * np.float32(0.25 * half)
 
     # 3. reject
-    bad = up(bad_s.astype(np.uint8)).astype(bool) | ~valid | ~(rho > rho_far * 0.999)
-    bad |= (score < o.min_zncc) | (stats[1] < o.min_std**2)
+    bad = up(ps.rejected.astype(np.uint8)).astype(bool) | ~valid | ~(rho > 0.999 / ps.far)
+    bad |= (score < o.min_zncc) | (fine.box_stats(o.refine_window)[1] < o.min_std**2)
     if o.edge_trim_px > 0:
         ker = np.ones((2 * o.edge_trim_px + 1,) * 2, np.uint8)
         bad |= cv2.erode(np.where(bad, 1e9, rho).astype(np.float32), ker) * o.edge_trim_ratio < rho
     depth = np.where(bad, 0.0, 1.0 / np.where(bad, 1.0, rho)).astype(np.float32)
-    return depth, np.where(bad, 0.0, score).astype(np.float32), n_planes
+    return depth, np.where(bad, 0.0, score).astype(np.float32), ps
 
 
 # --------------------------------------------------------------------------------------------- public
@@ -1053,6 +1126,8 @@ def mvs_depth(
     points_w: ArrayLike | None = None,
     options: MvsOptions | None = None,
     sweep_window: tuple[float, float] | None = None,
+    plane_sweep: PlaneSweep | None = None,
+    box: tuple[int, int, int, int] | None = None,
 ) -> MvsResult:
     """Photometric depth of the reference view from its source views (see the module docstring).
 
@@ -1064,8 +1139,75 @@ def mvs_depth(
     far) z-depths (m): only the planes of the sweep over the depth range that lie within it (and 2
     more each side) are swept; pixels whose best plane is at its ends are rejected (out of the
     window). Ignored with ``coarse_band`` > 0.
+
+    ``plane_sweep``: the reference's step 1 from an earlier result (``MvsResult.plane_sweep``, with
+    any sources, the same ``options``): only steps 2-3 run, with these sources, over its depth range
+    (``depth_range`` and ``points_w`` are not used). ``box`` (x0, y0, x1, y1), pixels, end
+    exclusive: step 1 over the whole view, steps 2-3 only within the box (zeros elsewhere).
     """
     o = options or MvsOptions()
+    inp = _inputs(
+        ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_range, points_w, plane_sweep
+    )
+    if isinstance(inp, MvsResult):
+        return inp
+    ref, ref_cam, t_wr, greys, cams, t_ws, (near, far) = inp
+    box = None if box is None else _box(box, ref_cam)
+    if o.backend == 'colmap':
+        views = [MvsView(np.asarray(ref_rgb), ref_cam, t_wr)]
+        views += [MvsView(np.asarray(im), c, t) for im, c, t in zip(src_rgbs, cams, t_ws)]
+        r = _colmap_depth_maps(views, [list(range(1, len(cams) + 1))], (near, far), o)[0]
+        return replace(r, depth=r.photometric_depth, n_consistent=np.zeros(ref.shape, np.uint8))
+    keep = _overlapping(ref_cam, t_wr, cams, t_ws, near, far)
+    if not keep:
+        return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
+    args = (ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o)
+    # (only when used: bench/_mvs_baseline.py stands in an older _sweep_and_refine without them)
+    extra: dict[str, Any] = (
+        {} if plane_sweep is None and box is None else {'plane_sweep': plane_sweep, 'box': box}
+    )
+    out = _sweep_and_refine(*args, sweep_window, **extra)
+    if isinstance(out, str):
+        return _empty(ref.shape, out, keep, (near, far))
+    depth, conf, ps = out
+    if box is not None:  # the box's depth into the view's
+        full = np.zeros((2, *ref.shape), np.float32)
+        full[:, box[1] : box[3], box[0] : box[2]] = depth, conf
+        depth, conf = full
+    zero = np.zeros(ref.shape, np.uint8)
+    return MvsResult(depth, conf, zero, depth.copy(), tuple(keep), '', (near, far), ps.n_planes, ps)
+
+
+def plane_sweep(
+    ref_rgb: ArrayLike,
+    ref_cam: PinholeCamera,
+    ref_pose: ArrayLike,
+    src_rgbs: Sequence[ArrayLike],
+    src_cams: PinholeCamera | Sequence[PinholeCamera],
+    src_poses: ArrayLike,
+    *,
+    depth_range: tuple[float, float],
+    options: MvsOptions | None = None,
+) -> PlaneSweep | str:
+    """Step 1 of :func:`mvs_depth` alone (the same arguments): the reference's :class:`PlaneSweep`
+    over ``depth_range`` (near, far) metres, or the reason (``REASON_*``) why none could be made.
+    :func:`mvs_depth` with this sweep as its ``plane_sweep`` and the same sources gives the same
+    result as without it."""
+    o = options or MvsOptions()
+    inp = _inputs(ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_range, None, None)
+    if isinstance(inp, MvsResult):
+        return inp.reason
+    ref, ref_cam, t_wr, greys, cams, t_ws, (near, far) = inp
+    keep = _overlapping(ref_cam, t_wr, cams, t_ws, near, far)
+    if not keep:
+        return REASON_NO_OVERLAP
+    grey = [greys[i] for i in keep]
+    return _plane_sweep(ref, ref_cam, t_wr, grey, [cams[i] for i in keep], t_ws[keep], near, far, o)
+
+
+def _inputs(ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_range, points_w, plane_sweep):
+    """:func:`mvs_depth`'s images (grey), cameras and poses checked, and its (near, far) metres; or an
+    all-zero result with the reason there is nothing to sweep. Bad arguments raise ValueError."""
     ref_cam = check_camera('ref_cam', ref_cam)
     ref = _grey('ref_rgb', ref_rgb, ref_cam)
     t_wr = validate_pose(ref_pose, field='ref_pose')
@@ -1076,7 +1218,15 @@ def mvs_depth(
     cams = _cameras('src_cams', src_cams, n)
     t_ws = _poses('src_poses', src_poses, n)
     greys = [_grey(f'src_rgbs[{i}]', im, c) for i, (im, c) in enumerate(zip(src_list, cams))]
-    if depth_range is not None:
+    if plane_sweep is not None:
+        if not isinstance(plane_sweep, PlaneSweep) or plane_sweep.size != (ref_cam.width, ref_cam.height):
+            got = getattr(plane_sweep, 'size', type(plane_sweep).__name__)
+            raise ValueError(
+                f'plane_sweep must be the PlaneSweep of a {ref_cam.width}x{ref_cam.height} view, got {got}'
+            )
+        far = plane_sweep.far
+        near = 1.0 / (1.0 / far - plane_sweep.step * (plane_sweep.n_planes - 1))
+    elif depth_range is not None:
         near, far = (float(v) for v in depth_range)
         if not (0 < near < far and math.isfinite(far)):
             raise ValueError(f'depth_range must be (near, far) with 0 < near < far < inf, got {depth_range}')
@@ -1089,25 +1239,26 @@ def mvs_depth(
         raise ValueError('mvs_depth needs depth_range or points_w')
     if n == 0:
         return _empty(ref.shape, REASON_NO_SOURCES, (), (near, far))
-    if o.backend == 'colmap':
-        views = [MvsView(np.asarray(ref_rgb), ref_cam, t_wr)]
-        views += [MvsView(np.asarray(im), c, t) for im, c, t in zip(src_list, cams, t_ws)]
-        r = _colmap_depth_maps(views, [list(range(1, n + 1))], (near, far), o)[0]
-        return replace(r, depth=r.photometric_depth, n_consistent=np.zeros(ref.shape, np.uint8))
-    # Sources that see some of the reference frustum between near and far.
+    return ref, ref_cam, t_wr, greys, cams, t_ws, (near, far)
+
+
+def _overlapping(
+    ref_cam: PinholeCamera, t_wr, cams: list[PinholeCamera], t_ws, near: float, far: float
+) -> list[int]:
+    """The sources that see some of the reference frustum between near and far."""
     probes = np.concatenate([probe_points(ref_cam, t_wr, d, 7) for d in (near, math.sqrt(near * far), far)])
-    keep = [i for i in range(n) if _in_view(probes, cams[i], t_ws[i])[0].any()]
-    if not keep:
-        return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
-    out = _sweep_and_refine(
-        ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o,
-        sweep_window,
-    )  # fmt: skip
-    if isinstance(out, str):
-        return _empty(ref.shape, out, keep, (near, far))
-    depth, conf, n_planes = out
-    zero = np.zeros(ref.shape, np.uint8)
-    return MvsResult(depth, conf, zero, depth.copy(), tuple(keep), '', (near, far), n_planes)
+    return [i for i in range(len(cams)) if _in_view(probes, cams[i], t_ws[i])[0].any()]
+
+
+def _box(box: object, cam: PinholeCamera) -> tuple[int, int, int, int]:
+    """``box`` as (x0, y0, x1, y1) ints within ``cam``'s image and not empty; else ValueError."""
+    try:
+        x0, y0, x1, y1 = (int(v) for v in box)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):
+        raise ValueError(f'box must be (x0, y0, x1, y1), got {box!r}') from None
+    if not (0 <= x0 < x1 <= cam.width and 0 <= y0 < y1 <= cam.height):
+        raise ValueError(f'box must be (x0, y0, x1, y1) within {cam.width}x{cam.height}, got {box!r}')
+    return x0, y0, x1, y1
 
 
 def geometric_filter(

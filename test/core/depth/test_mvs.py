@@ -242,9 +242,17 @@ def test_warp_rows_matches_a_float64_reference():
     assert 0 < valid.mean() < 1
 
 
+def _centred(ref: np.ndarray, srcs: np.ndarray, r: int) -> tuple[np.ndarray, ...]:
+    """The sweep kernel's image inputs as ``_Stack.sweep`` passes them: the reference and the
+    sources centred on ``_GREY_CENTRE``, the reference's window means (centred) and variances, float32."""
+    c = np.float32(mvs._GREY_CENTRE)
+    mr, vr = mvs._box_stats(ref, r)
+    return ref - c, (mr - c).astype(np.float32), vr.astype(np.float32), (srcs - c).astype(np.float32)
+
+
 def _zncc_truncated(ref: np.ndarray, src: np.ndarray, r: int) -> np.ndarray:
     """Windowed ZNCC by brute force (float64) over (2r+1)^2 boxes truncated at the image border;
-    flat windows (variance product <= 1e-6) score 0."""
+    flat windows (variance product <= 1e-6, or a source variance <= ``_MIN_SOURCE_VAR``) score 0."""
     h, w = ref.shape
     out = np.zeros((h, w))
     for y in range(h):
@@ -253,7 +261,7 @@ def _zncc_truncated(ref: np.ndarray, src: np.ndarray, r: int) -> np.ndarray:
             b = src[max(0, y - r) : y + r + 1, max(0, x - r) : x + r + 1].astype(np.float64)
             cov = (a * b).mean() - a.mean() * b.mean()
             den = a.var() * b.var()
-            out[y, x] = cov / np.sqrt(den) if den > 1e-6 else 0.0
+            out[y, x] = cov / np.sqrt(den) if den > 1e-6 and b.var() > mvs._MIN_SOURCE_VAR else 0.0
     return out
 
 
@@ -268,13 +276,14 @@ def test_sweep_kernel_scores_the_mean_of_the_best_sources(r, top_k):
     srcs = np.stack([ref * rng.uniform(-1, 1) + rng.normal(0, 60, (h, w)) for _ in range(n)])
     srcs = srcs.astype(np.float32)
     srcs[1, 10:20, 10:20] = 7.0  # a flat patch: those windows score 0
-    mr, vr = mvs._box_stats(ref, r)
+    srcs[2, 20:30, 5:15] = 90.0 + rng.normal(0, 0.1, (10, 10))  # about flat (variance 0.01): 0 too
     sizes = np.array([[h, w]] * n, np.int64)
     a = np.stack([np.eye(3)] * n)
     b = np.zeros((n, 3))
     base = np.full((1, h, w), 0.1, np.float32)
+    ref_c, mr, vr, srcs_c = _centred(ref, srcs, r)
     pos, best, second = mvs._sweep(
-        ref, mr, vr, srcs, sizes, a, b, base, np.zeros(1, np.float32), r, top_k, 8, True, 2
+        ref_c, mr, vr, srcs_c, sizes, a, b, base, np.zeros(1, np.float32), r, top_k, 8, True, 2
     )
     # the identity warp, border clamped as the kernel's bilinear lookup (at most W - 1.001, H - 1.001)
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -303,7 +312,7 @@ def test_sweep_kernel_with_a_base_per_hypothesis_scores_each_as_alone():
     srcs = np.stack([np.roll(ref, k + 1, axis=1) + rng.normal(0, 20, (h, w)) for k in range(n)]).astype(
         np.float32
     )
-    mr, vr = mvs._box_stats(ref, r)
+    ref, mr, vr, srcs = _centred(ref, srcs, r)
     sizes = np.array([[h, w]] * n, np.int64)
     a = np.stack([np.eye(3)] * n)
     b = np.stack([[50.0 * (k + 1), 0.0, 0.0] for k in range(n)])  # disparity 50 (k + 1) rho px
