@@ -73,9 +73,9 @@ def run(
         sweeps[0] += 1
         return real(*a, **k)  # type: ignore[arg-type]
 
-    def scored(self: mvs._Stack, stats: object, base: object, offsets: object, *a: object) -> object:
+    def scored(self: mvs._Stack, base: object, offsets: object, *a: object) -> object:
         work[0] += self.ref.size * np.asarray(offsets).size * len(self.srcs)
-        return real_sweep(self, stats, base, offsets, *a)  # type: ignore[arg-type]
+        return real_sweep(self, base, offsets, *a)  # type: ignore[arg-type]
 
     job_mvs.mvs_depth = counted  # type: ignore[assignment]
     mvs._Stack.sweep = scored  # type: ignore[method-assign]

@@ -29,11 +29,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmark this c
 import numpy as np
 
 from ibr_ros.core.depth import mvs
-from ibr_ros.core.depth.job_mvs import job_depth
+from ibr_ros.core.depth.job_mvs import PlaneSweepCache, job_depth, own_plane_sweeps
 from ibr_ros.core.depth.mvs import MvsOptions
 
+#: MvsOptions overrides of the baseline; 'sweeps' also keeps a PlaneSweepCache across the jobs,
+#: filled ahead of each job with its neighbours' sweeps over their own (recorded) jobs.
 VARIANTS: dict[str, dict[str, object]] = {
     'roi': {'neighbour_roi': True},
+    'sweeps': {'neighbour_roi': True},
     'sources2': {'neighbour_sources': 2},
     'sources1': {'neighbour_sources': 1},
 }
@@ -43,9 +46,9 @@ WORK = [0]
 def _count_work() -> None:
     real = mvs._Stack.sweep
 
-    def scored(self: mvs._Stack, stats: object, base: object, offsets: object, *a: object) -> object:
+    def scored(self: mvs._Stack, base: object, offsets: object, *a: object) -> object:
         WORK[0] += self.ref.size * np.asarray(offsets).size * len(self.srcs)
-        return real(self, stats, base, offsets, *a)  # type: ignore[arg-type]
+        return real(self, base, offsets, *a)  # type: ignore[arg-type]
 
     mvs._Stack.sweep = scored  # type: ignore[method-assign]
 
@@ -59,11 +62,11 @@ def dump(path: Path, argv: list[str]) -> int:
     jobs: list[tuple[list[int], Any, Any]] = []
     real = refine.refine_job
 
-    def recorded(refiner: Any, job: Any, options: Any, cache: Any = None) -> Any:
+    def recorded(refiner: Any, job: Any, options: Any, *caches: Any) -> Any:
         for s, v in zip(job.stamps, job.views, strict=True):
             views.setdefault(s, v)
         jobs.append((list(job.stamps), job.depth_range, job.probe_range))
-        return real(refiner, job, options, cache)
+        return real(refiner, job, options, *caches)
 
     refine.refine_job = recorded  # type: ignore[assignment]
     rc = main(argv)
@@ -80,16 +83,27 @@ def replay(path: Path, n_jobs: int, variants: list[str]) -> int:
     with open(path, 'rb') as f:
         d = pickle.load(f)  # a file this script wrote
     views, jobs = d['views'], d['jobs'][:n_jobs]
+    own = {stamps[0]: (stamps, rng) for stamps, rng, _ in d['jobs']}
+
+    def own_job(stamp: int) -> tuple[list[Any], list[int], tuple[float, float]] | None:
+        if stamp not in own:
+            return None
+        stamps, rng = own[stamp]
+        return [views[s] for s in stamps], stamps, rng
+
     _count_work()
     baseline = MvsOptions(neighbour_roi=False)
 
-    def run(o: MvsOptions) -> tuple[list[np.ndarray], float, int]:
+    def run(o: MvsOptions, sweeps: bool = False) -> tuple[list[np.ndarray], float, int]:
         WORK[0] = 0
+        cache = PlaneSweepCache.for_flight(sweeps)
         c0 = time.process_time()
-        out = [
-            job_depth([views[s] for s in stamps], stamps, rng, o, probe_range=probe).depth
-            for stamps, rng, probe in jobs
-        ]
+        out = []
+        for stamps, rng, probe in jobs:
+            own_plane_sweeps(stamps[1:], cache, own_job, o)
+            out.append(
+                job_depth([views[s] for s in stamps], stamps, rng, o, probe_range=probe, sweeps=cache).depth
+            )
         return out, time.process_time() - c0, WORK[0]
 
     v0 = next(iter(views.values()))
@@ -104,7 +118,7 @@ def replay(path: Path, n_jobs: int, variants: list[str]) -> int:
     size = sum(b.size for b in base)
     print(f'| baseline | 1 | 1 | {c_base / len(jobs):.2f} | {n_base / size:.4f} | 1 | 1 |', flush=True)
     for name in variants:
-        out, c, w = run(replace(baseline, **VARIANTS[name]))  # type: ignore[arg-type]
+        out, c, w = run(replace(baseline, **VARIANTS[name]), name == 'sweeps')  # type: ignore[arg-type]
         n = sum(int((a > 0).sum()) for a in out)
         both = sum(int(((a > 0) & (b > 0)).sum()) for a, b in zip(out, base, strict=True))
         print(
@@ -127,10 +141,10 @@ def main() -> int:
     r.add_argument('--jobs', dest='n_jobs', type=int, default=10)
     r.add_argument('variants', nargs='*', help=f'of {", ".join(VARIANTS)} (default: all)')
     a = p.parse_args()
-    if bad := sorted(set(a.variants) - set(VARIANTS)):
-        p.error(f'unknown variants {bad}: choose from {list(VARIANTS)}')
     if a.cmd == 'dump':
         return dump(a.jobs, a.args[1:] if a.args[:1] == ['--'] else a.args)
+    if bad := sorted(set(a.variants) - set(VARIANTS)):
+        p.error(f'unknown variants {bad}: choose from {list(VARIANTS)}')
     return replay(a.jobs, a.n_jobs, a.variants or list(VARIANTS))
 
 

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 
 import cv2
@@ -227,9 +228,9 @@ def test_a_sweep_window_sweeps_only_the_planes_within_it(monkeypatch):
     hypotheses: list[int] = []
     real = mvs._Stack.sweep
 
-    def count(self, stats, base, offsets, *a):  # type: ignore[no-untyped-def]
+    def count(self, base, offsets, *a):  # type: ignore[no-untyped-def]
         hypotheses.append(np.asarray(offsets).size)
-        return real(self, stats, base, offsets, *a)
+        return real(self, base, offsets, *a)
 
     monkeypatch.setattr(mvs._Stack, 'sweep', count)
     ref, src = views[0], views[1:]
@@ -245,3 +246,122 @@ def test_a_sweep_window_sweeps_only_the_planes_within_it(monkeypatch):
     assert np.median(np.abs(win.depth[both] / full.depth[both] - 1)) < 1e-3
     outside = mvs.mvs_depth(*args, depth_range=RANGE, options=OPTIONS, sweep_window=(40.0, 60.0))
     assert (outside.depth > 0).mean() < 0.05  # the best planes lie at its near end: rejected
+
+
+def test_a_plane_sweep_refined_later_gives_the_same_depth(monkeypatch):
+    """mvs_depth from plane_sweep's result equals mvs_depth in one go; with a box only step 1 covers
+    the whole view and the depth inside the box (away from its border) is the same."""
+    views = _strip_views(list(STRIP))
+    ref, src = views[0], views[1:]
+    args = (ref.rgb, ref.camera, ref.t_wc, [v.rgb for v in src], ref.camera, np.stack([v.t_wc for v in src]))
+    whole = mvs.mvs_depth(*args, depth_range=STRIP_RANGE, options=STRIP_OPTIONS)
+    ps = mvs.plane_sweep(*args, depth_range=STRIP_RANGE, options=STRIP_OPTIONS)
+    assert isinstance(ps, mvs.PlaneSweep)
+    assert ps.size == (ref.camera.width, ref.camera.height)
+    assert ps.n_planes == whole.n_planes
+    again = mvs.mvs_depth(*args, options=STRIP_OPTIONS, plane_sweep=ps)
+    np.testing.assert_array_equal(again.depth, whole.depth)
+    np.testing.assert_array_equal(again.confidence, whole.confidence)
+    assert again.depth_range == pytest.approx(whole.depth_range)
+    assert (whole.depth > 0).mean() > 0.5
+    x0, y0, x1, y1 = 40, 30, 200, 150
+    boxed = mvs.mvs_depth(*args, options=STRIP_OPTIONS, plane_sweep=ps, box=(x0, y0, x1, y1))
+    outside = np.ones(boxed.depth.shape, bool)
+    outside[y0:y1, x0:x1] = False
+    assert not boxed.depth[outside].any()
+    m = 12  # the box's own window borders, median and edge trim
+    inner, want = boxed.depth[y0 + m : y1 - m, x0 + m : x1 - m], whole.depth[y0 + m : y1 - m, x0 + m : x1 - m]
+    assert ((inner > 0) != (want > 0)).mean() < 0.002  # (warps through the box's own intrinsics: float32)
+    both = (inner > 0) & (want > 0)
+    np.testing.assert_allclose(inner[both], want[both], rtol=1e-3)
+    one_go = mvs.mvs_depth(*args, depth_range=STRIP_RANGE, options=STRIP_OPTIONS, box=(x0, y0, x1, y1))
+    np.testing.assert_array_equal(one_go.depth, boxed.depth)  # step 1 over the whole view
+    with pytest.raises(ValueError, match='plane_sweep must be the PlaneSweep of a 256x192 view'):
+        mvs.mvs_depth(*args, options=STRIP_OPTIONS, plane_sweep=replace(ps, size=(10, 10)))
+    with pytest.raises(ValueError, match='box must be'):
+        mvs.mvs_depth(*args, options=STRIP_OPTIONS, plane_sweep=ps, box=(0, 0, 300, 100))
+    with pytest.raises(ValueError, match='box must be'):
+        mvs.mvs_depth(*args, options=STRIP_OPTIONS, plane_sweep=ps, box=(5, 5))
+    far_away = np.stack([v.t_wc for v in src])
+    far_away[:, 0, 3] += 500.0
+    assert mvs.plane_sweep(*args[:5], far_away, depth_range=STRIP_RANGE) == mvs.REASON_NO_OVERLAP
+
+
+def test_each_keyframe_is_plane_swept_once_over_its_own_job(monkeypatch):
+    """With a PlaneSweepCache filled by own_plane_sweeps, a job runs no plane sweep: its reference's
+    comes from the cache when made over the same sources and range, its neighbours' from their own
+    jobs; their depth is refined against the job's views and confirms about as much."""
+    views = _strip_views([0.0, 4.0, -4.0, 8.0, 12.0])
+    stamps = [1, 2, 3, 4, 5]
+    by_stamp = dict(zip(stamps, views, strict=True))
+    o = replace(STRIP_OPTIONS, neighbour_roi=True)
+    # each keyframe's own job: its nearest others along the strip
+    own = {
+        s: sorted(
+            (t for t in stamps if t != s), key=lambda t: abs(by_stamp[t].t_wc[0, 3] - by_stamp[s].t_wc[0, 3])
+        )[:3]
+        for s in stamps
+    }
+
+    def own_job(stamp: int):  # type: ignore[no-untyped-def]
+        if stamp == 5:
+            return None  # no job now: swept within the job instead
+        job = [stamp, *own[stamp]]
+        return [by_stamp[t] for t in job], job, STRIP_RANGE
+
+    swept: list[tuple[int, int]] = []
+    real = mvs._plane_sweep
+    monkeypatch.setattr(
+        mvs, '_plane_sweep', lambda ref, *a, **k: swept.append(ref.shape) or real(ref, *a, **k)
+    )
+    job = [1, *own[1]]
+    without = job_depth([by_stamp[t] for t in job], job, STRIP_RANGE, o)
+    assert len(swept) == 4
+    sweeps = job_mvs.PlaneSweepCache.for_flight(True)
+    swept.clear()
+    assert job_mvs.own_plane_sweeps(own[1], sweeps, own_job, o) == 3
+    assert len(swept) == 3
+    assert job_mvs.own_plane_sweeps(own[1], sweeps, own_job, o) == 0  # made once
+    swept.clear()
+    r = job_depth([by_stamp[t] for t in job], job, STRIP_RANGE, o, sweeps=sweeps)
+    assert len(swept) == 1  # the reference's: not made yet
+    assert sweeps.sweep(1, (tuple(own[1]), STRIP_RANGE)) is not None
+    assert sweeps.sweep(1, ((9,), STRIP_RANGE)) is None  # made from other sources
+    swept.clear()
+    again = job_depth([by_stamp[t] for t in job], job, STRIP_RANGE, o, sweeps=sweeps)
+    assert swept == []  # the reference's own sweep reused
+    np.testing.assert_array_equal(again.depth, r.depth)
+    kept, err = _agreement(r, without)
+    assert kept > 0.95
+    assert err < 0.002
+    assert abs(int((r.depth > 0).sum()) - int((without.depth > 0).sum())) < 0.03 * (without.depth > 0).sum()
+    swept.clear()
+    assert job_mvs.own_plane_sweeps([5], sweeps, own_job, o) == 0  # no own job: left to the job
+    assert job_mvs.own_plane_sweeps([2], job_mvs.PlaneSweepCache.for_flight(False), own_job, o) == 0
+    assert swept == []
+
+
+def test_neighbours_swept_at_once_give_the_depth_of_one_at_a_time(monkeypatch):
+    """job_depth sweeps the neighbours on several threads (the numba threads shared out among
+    them, the costliest first): the same depth as one after another."""
+    views = _strip_views(list(STRIP))
+    o = replace(STRIP_OPTIONS, neighbour_roi=True)
+    monkeypatch.setattr(job_mvs.numba, 'get_num_threads', lambda: 1)
+    alone = job_depth(views, [1, 2, 3, 4], STRIP_RANGE, o)
+    shared: list[int] = []
+    monkeypatch.setattr(job_mvs.numba, 'get_num_threads', lambda: 4)
+    monkeypatch.setattr(job_mvs.numba, 'set_num_threads', shared.append)
+    threads: set[str] = set()
+    real = job_mvs._photometric
+
+    def record(*a, **k):  # type: ignore[no-untyped-def]
+        threads.add(threading.current_thread().name)
+        return real(*a, **k)
+
+    monkeypatch.setattr(job_mvs, '_photometric', record)
+    together = job_depth(views, [1, 2, 3, 4], STRIP_RANGE, o)
+    assert shared == [1, 1, 1]  # 3 neighbours on 3 threads, 4 // 3 numba threads each
+    assert len(threads) > 1
+    assert all(t.startswith('mvs') for t in threads)
+    np.testing.assert_array_equal(together.depth, alone.depth)
+    np.testing.assert_array_equal(together.n_consistent, alone.n_consistent)
