@@ -33,19 +33,8 @@ def mvs_depth(*args, **kwargs) -> MvsResult:
     """:func:`ibr_ros.core.depth.mvs.mvs_depth` with the baseline sweep (and, without ``options``,
     its defaults :data:`OPTIONS`)."""
     kwargs.setdefault('options', OPTIONS)
-    with mock.patch.object(mvs, '_sweep_and_refine', _current_interface):
+    with mock.patch.object(mvs, '_sweep_and_refine', _sweep_and_refine):
         return mvs.mvs_depth(*args, **kwargs)
-
-
-def _current_interface(*args, **kwargs):
-    """This module's ``_sweep_and_refine`` with the result mvs.mvs_depth unpacks today (the third
-    item a :class:`~ibr_ros.core.depth.mvs.PlaneSweep`: only its ``n_planes`` is real)."""
-    out = _sweep_and_refine(*args, **kwargs)
-    if isinstance(out, str):
-        return out
-    depth, score, n_planes = out
-    z = np.zeros((1, 1), np.float32)
-    return depth, score, mvs.PlaneSweep(z, z > 0, 0.0, n_planes, 1.0, (depth.shape[1], depth.shape[0]))
 
 
 @njit(cache=True, parallel=True)

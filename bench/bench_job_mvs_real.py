@@ -29,14 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmark this c
 import numpy as np
 
 from ibr_ros.core.depth import mvs
-from ibr_ros.core.depth.job_mvs import PlaneSweepCache, job_depth, own_plane_sweeps
+from ibr_ros.core.depth.job_mvs import job_depth
 from ibr_ros.core.depth.mvs import MvsOptions
 
-#: MvsOptions overrides of the baseline; 'sweeps' also keeps a PlaneSweepCache across the jobs,
-#: filled ahead of each job with its neighbours' sweeps over their own (recorded) jobs.
 VARIANTS: dict[str, dict[str, object]] = {
     'roi': {'neighbour_roi': True},
-    'sweeps': {'neighbour_roi': True},
     'sources2': {'neighbour_sources': 2},
     'sources1': {'neighbour_sources': 1},
 }
@@ -83,27 +80,16 @@ def replay(path: Path, n_jobs: int, variants: list[str]) -> int:
     with open(path, 'rb') as f:
         d = pickle.load(f)  # a file this script wrote
     views, jobs = d['views'], d['jobs'][:n_jobs]
-    own = {stamps[0]: (stamps, rng) for stamps, rng, _ in d['jobs']}
-
-    def own_job(stamp: int) -> tuple[list[Any], list[int], tuple[float, float]] | None:
-        if stamp not in own:
-            return None
-        stamps, rng = own[stamp]
-        return [views[s] for s in stamps], stamps, rng
-
     _count_work()
     baseline = MvsOptions(neighbour_roi=False)
 
-    def run(o: MvsOptions, sweeps: bool = False) -> tuple[list[np.ndarray], float, int]:
+    def run(o: MvsOptions) -> tuple[list[np.ndarray], float, int]:
         WORK[0] = 0
-        cache = PlaneSweepCache.for_flight(sweeps)
         c0 = time.process_time()
-        out = []
-        for stamps, rng, probe in jobs:
-            own_plane_sweeps(stamps[1:], cache, own_job, o)
-            out.append(
-                job_depth([views[s] for s in stamps], stamps, rng, o, probe_range=probe, sweeps=cache).depth
-            )
+        out = [
+            job_depth([views[s] for s in stamps], stamps, rng, o, probe_range=probe).depth
+            for stamps, rng, probe in jobs
+        ]
         return out, time.process_time() - c0, WORK[0]
 
     v0 = next(iter(views.values()))
@@ -118,7 +104,7 @@ def replay(path: Path, n_jobs: int, variants: list[str]) -> int:
     size = sum(b.size for b in base)
     print(f'| baseline | 1 | 1 | {c_base / len(jobs):.2f} | {n_base / size:.4f} | 1 | 1 |', flush=True)
     for name in variants:
-        out, c, w = run(replace(baseline, **VARIANTS[name]), name == 'sweeps')  # type: ignore[arg-type]
+        out, c, w = run(replace(baseline, **VARIANTS[name]))  # type: ignore[arg-type]
         n = sum(int((a > 0).sum()) for a in out)
         both = sum(int(((a > 0) & (b > 0)).sum()) for a, b in zip(out, base, strict=True))
         print(

@@ -56,7 +56,7 @@ KERNELS: tuple[tuple[str, Callable[..., Any]], ...] = (('old', old_kernels._swee
 #: so a winner-takes-all pick flips where two planes score within float32 noise): the single-source
 #: ZNCC at textured reference pixels within MAX_ZNCC_ERR on all but ZNCC_OUTLIERS of those where
 #: both score, the validity (-1: nothing scored) differing on <= ZNCC_OUTLIERS of them (the new
-#: kernel scores source windows flatter than mvs._MIN_SOURCE_VAR 0); the pixels with depth
+#: kernel scores source windows flatter than mvs._MIN_WINDOW_VAR 0); the pixels with depth
 #: differing on <= MAX_SET_DIFF of all pixels; each quality number within MAX_QUALITY_DIFF. The
 #: share of common depth within REL_TOL (relative) is printed, not judged.
 REL_TOL, MAX_SET_DIFF = 1e-3, 0.002

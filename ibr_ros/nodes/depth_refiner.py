@@ -33,7 +33,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import msg_utils
 from ibr_ros.core.depth.colour import colour_depth
-from ibr_ros.core.depth.job_mvs import PhotometricCache, PlaneSweepCache
+from ibr_ros.core.depth.job_mvs import PhotometricCache
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, RefinerConfig, known_depth, refine_job
@@ -82,7 +82,6 @@ class DepthRefinerNode(Node):
         self.max_pending = cfg.max_pending
         self.schedule = RefineScheduler(cfg.schedule)
         self.photometric = PhotometricCache.for_flight(cfg.schedule.reuse_neighbour_depth)
-        self.sweeps = PlaneSweepCache.for_flight(cfg.schedule.reuse_plane_sweeps)
         self.trigger = SfmTrigger(cfg.sfm)
         self.sfm = SfmSession(scale_hint=cfg.sfm.scale, max_side=cfg.sfm.max_side, redefine=False)
         self.unit = 'm'  # of poses and depth: 'sfm units' in an SfM frame without a scale
@@ -514,7 +513,6 @@ class DepthRefinerNode(Node):
             with self._lock:
                 self.schedule = RefineScheduler(replace(cfg, depth_range=None, scene_depth_m=0.0))
                 self.photometric.clear()
-                self.sweeps.clear()
             self.unit = 'sfm units'
         world = 'map' if u.frame == 'enu' else 'sfm'
         with self._lock:
@@ -591,21 +589,10 @@ class DepthRefinerNode(Node):
             self._wake.set()  # look for the next job straight away
 
     # -- refinement -----------------------------------------------------------------------------
-    def _own_job(self, stamp: int) -> tuple[list[MvsView], list[int], tuple[float, float]] | None:
-        """Keyframe ``stamp``'s own job now (views, stamps, depth range), for its plane sweep."""
-        with self._lock:
-            try:
-                job = self.schedule.job_of(stamp)
-            except BAD_MESSAGE:  # a degenerate keyframe set: next_job reports it
-                return None
-        return None if job is None else (job.views, job.stamps, job.depth_range)
-
     def _refine(self, job: RefineJob) -> bool:
         """Refine and publish ``job``; False when the refinement failed (counted as bad input)."""
         n, rng = len(job.neighbours), job.depth_range
-        result = refine_job(
-            self.refiner, job, self.schedule.config.mvs, self.photometric, self.sweeps, self._own_job
-        )
+        result = refine_job(self.refiner, job, self.schedule.config.mvs, self.photometric)
         if self._stop.is_set():
             return False
         if (r := result.refined) is None:

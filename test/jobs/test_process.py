@@ -303,30 +303,6 @@ def test_deterministic(processed, flight, params, tmp_path):
         assert [r[2] for r in a[topic]] == [r[2] for r in b[topic]], topic
 
 
-def test_reused_plane_sweeps_refine_every_keyframe_once_each(flight, params, tmp_path, monkeypatch):
-    """reuse_plane_sweeps: every keyframe's plane sweep is made once over its own job (a neighbour's
-    ahead of the first job it is in), the flight is refined as without it, deterministically."""
-    from ibr_ros.core.depth import mvs
-
-    swept: list[tuple[int, int]] = []
-    real = mvs._plane_sweep
-    monkeypatch.setattr(
-        mvs, '_plane_sweep', lambda ref, *a, **k: swept.append(ref.shape) or real(ref, *a, **k)
-    )
-    on = tmp_path / 'on.yaml'
-    on.write_text(PARAMS + 'depth_refiner:\n  ros__parameters:\n    reuse_plane_sweeps: true\n')
-    outs = []
-    for run in ('a', 'b'):
-        swept.clear()
-        summary = process_bag(flight, tmp_path / run, ProcessOptions(params=on, max_keyframes=4, views=1))
-        assert summary['refine']['not_refined'] == {}
-        assert len(swept) == 4  # one per keyframe, over the whole view
-        assert set(swept) == {(180, 320)}
-        outs.append(_messages(tmp_path / run / 'bag'))
-    assert len(outs[0]['/keyframes/depth']) == 4
-    assert [r[2] for r in outs[0]['/keyframes/depth']] == [r[2] for r in outs[1]['/keyframes/depth']]
-
-
 def test_params_files(tmp_path, repo):
     import yaml
 

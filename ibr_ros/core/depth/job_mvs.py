@@ -17,13 +17,6 @@ only serves to confirm the reference's: with ``MvsOptions.neighbour_roi`` (the d
 only over the pixel box and the depths where the reference's photometric depth projects
 (:func:`guided_roi`), and with ``MvsOptions.neighbour_sources`` against fewer views.
 
-With a :class:`PlaneSweepCache` (``reuse_plane_sweeps``) each keyframe's plane sweep (step 1 of
-:func:`~ibr_ros.core.depth.mvs.mvs_depth`, about half of its work) is made once, over its own job's
-views and depth range (:func:`own_plane_sweeps`, ahead of the first job it is a neighbour in), and
-serves its own job and every job it is a neighbour in: there its depth is still refined (steps
-2-3) against the job's views, from its own sweep. Sweeping a neighbour against the job's views
-instead, or reusing one made in another keyframe's job, confirms fewer of the reference's pixels
-on real photos (bench/README.md).
 The neighbours of a job are swept several at once (the numba threads shared out among them).
 Depths: float32 z-depth in metres, 0 = unknown; stamps: nanoseconds.
 """
@@ -36,7 +29,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import Generic, TypeAlias, TypeVar
+from typing import TypeAlias, TypeVar
 
 import numba
 import numpy as np
@@ -46,11 +39,9 @@ from ibr_ros.core.depth.mvs import (
     MvsOptions,
     MvsResult,
     MvsView,
-    PlaneSweep,
     geometric_filter,
     in_view_pixels,
     mvs_depth,
-    plane_sweep,
     select_neighbours,
 )
 from ibr_ros.core.geometry.camera import PinholeCamera
@@ -59,13 +50,11 @@ __all__ = [
     'FLIGHT_CAPACITY',
     'ROI_DEPTH_SLACK',
     'ROI_MARGIN_PX',
-    'ROI_MIN_SUPPORT_PX',
-    'KeyframeCache',
+    'ROI_MIN_SUPPORT',
     'PhotometricCache',
-    'PlaneSweepCache',
+    'Roi',
     'guided_roi',
     'job_depth',
-    'own_plane_sweeps',
 ]
 
 #: Maps a flight's cache keeps with ``reuse_neighbour_depth`` (0.9 MB each at 640x360, 3 MB at
@@ -73,56 +62,20 @@ __all__ = [
 FLIGHT_CAPACITY = 48
 
 
-T = TypeVar('T')
-
-
-class KeyframeCache(Generic[T]):
-    """Values by keyframe stamp; the ``capacity`` most recently used kept.
+class PhotometricCache:
+    """Photometric MVS depth of the keyframes, by stamp; the ``capacity`` most recently used kept.
 
     Thread-safe (a node's refinement worker and its executor share it). ``capacity`` 0 keeps none.
     """
 
-    def __init__(self, capacity: int = FLIGHT_CAPACITY) -> None:
+    def __init__(self, capacity: int = 48) -> None:
         if capacity < 0:
             raise ValueError(f'capacity must be >= 0, got {capacity}')
         self.capacity = capacity
-        self._items: OrderedDict[int, T] = OrderedDict()
+        self._maps: OrderedDict[int, NDArray[np.float32]] = OrderedDict()
         self._lock = threading.Lock()
         self.hits = 0
         self.misses = 0
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def get(self, stamp: int) -> T | None:
-        """The value of keyframe ``stamp``, or None."""
-        with self._lock:
-            v = self._items.get(int(stamp))
-            if v is None:
-                self.misses += 1
-                return None
-            self._items.move_to_end(int(stamp))
-            self.hits += 1
-            return v
-
-    def put(self, stamp: int, value: T) -> None:
-        """Keep ``value`` as keyframe ``stamp``'s (replacing any)."""
-        if self.capacity == 0:
-            return
-        with self._lock:
-            self._items[int(stamp)] = value
-            self._items.move_to_end(int(stamp))
-            while len(self._items) > self.capacity:
-                self._items.popitem(last=False)
-
-    def clear(self) -> None:
-        """Forget every value (the keyframes' frame changed)."""
-        with self._lock:
-            self._items.clear()
-
-
-class PhotometricCache(KeyframeCache[NDArray[np.float32]]):
-    """Photometric MVS depth of the keyframes (HxW float32 metres, 0 = unknown, read-only), by stamp."""
 
     @classmethod
     def for_flight(cls, reuse: bool) -> PhotometricCache:
@@ -130,71 +83,36 @@ class PhotometricCache(KeyframeCache[NDArray[np.float32]]):
         (``reuse_neighbour_depth``), else none (every job sweeps its neighbours itself)."""
         return cls(FLIGHT_CAPACITY if reuse else 0)
 
-    def put(self, stamp: int, value: NDArray[np.float32]) -> None:
-        """Keep a read-only copy of ``value`` as keyframe ``stamp``'s depth."""
+    def __len__(self) -> int:
+        return len(self._maps)
+
+    def get(self, stamp: int) -> NDArray[np.float32] | None:
+        """The depth of keyframe ``stamp`` (read-only), or None."""
+        with self._lock:
+            d = self._maps.get(int(stamp))
+            if d is None:
+                self.misses += 1
+                return None
+            self._maps.move_to_end(int(stamp))
+            self.hits += 1
+            return d
+
+    def put(self, stamp: int, depth: NDArray[np.float32]) -> None:
+        """Keep ``depth`` (HxW float32 metres, 0 = unknown) as keyframe ``stamp``'s."""
         if self.capacity == 0:
             return
-        d = np.array(value, dtype=np.float32)
+        d = np.array(depth, dtype=np.float32)
         d.setflags(write=False)
-        super().put(stamp, d)
+        with self._lock:
+            self._maps[int(stamp)] = d
+            self._maps.move_to_end(int(stamp))
+            while len(self._maps) > self.capacity:
+                self._maps.popitem(last=False)
 
-
-#: What a plane sweep was made from: the stamps of its source views and its (near, far) in metres.
-SweepKey: TypeAlias = tuple[tuple[int, ...], tuple[float, float]]
-
-
-class PlaneSweepCache(KeyframeCache[tuple[SweepKey, PlaneSweep]]):
-    """The last :class:`~ibr_ros.core.depth.mvs.PlaneSweep` of each keyframe with its
-    :data:`SweepKey`, by stamp (about 1 MB each at 1000x750, half-resolution sweep)."""
-
-    @classmethod
-    def for_flight(cls, reuse: bool) -> PlaneSweepCache:
-        """The cache of a flight: :data:`FLIGHT_CAPACITY` sweeps with ``reuse``
-        (``reuse_plane_sweeps``), else none."""
-        return cls(FLIGHT_CAPACITY if reuse else 0)
-
-    def sweep(self, stamp: int, key: SweepKey | None = None) -> PlaneSweep | None:
-        """Keyframe ``stamp``'s plane sweep (made from ``key`` when given), or None."""
-        entry = self.get(stamp)
-        if entry is None or (key is not None and entry[0] != key):
-            return None
-        return entry[1]
-
-
-#: A keyframe's own job by stamp: its views (its own first, then its sources), their stamps and
-#: the depth range (near, far) in metres; None when it has none now.
-OwnJob: TypeAlias = Callable[[int], tuple[Sequence[MvsView], Sequence[int], tuple[float, float]] | None]
-
-
-def own_plane_sweeps(
-    stamps: Sequence[int], sweeps: PlaneSweepCache, own_job: OwnJob, options: MvsOptions
-) -> int:
-    """Make and keep in ``sweeps`` the plane sweep of each keyframe of ``stamps`` that it lacks,
-    over the keyframe's own job (``own_job(stamp)``); returns how many were made.
-
-    A keyframe without a job now, or whose sweep cannot be made (no overlap, no parallax), is left
-    out: :func:`job_depth` then sweeps it within the job, as without a cache.
-    """
-    made = 0
-    if sweeps.capacity == 0:
-        return made
-    for stamp in stamps:
-        if sweeps.sweep(stamp) is not None or (job := own_job(stamp)) is None:
-            continue
-        views, job_stamps, rng = job
-        ref, srcs = views[0], list(views[1:])
-        ps = plane_sweep(
-            ref.rgb, ref.camera, ref.t_wc, [v.rgb for v in srcs], [v.camera for v in srcs],
-            np.stack([v.t_wc for v in srcs]), depth_range=rng, options=options,
-        )  # fmt: skip
-        if isinstance(ps, PlaneSweep):
-            sweeps.put(stamp, ((tuple(int(s) for s in job_stamps[1:]), _range(rng)), ps))
-            made += 1
-    return made
-
-
-def _range(rng: Sequence[float]) -> tuple[float, float]:
-    return float(rng[0]), float(rng[1])
+    def clear(self) -> None:
+        """Forget every depth (the keyframes' frame changed)."""
+        with self._lock:
+            self._maps.clear()
 
 
 def job_depth(
@@ -205,18 +123,15 @@ def job_depth(
     *,
     probe_range: tuple[float, float] | None = None,
     cache: PhotometricCache | None = None,
-    sweeps: PlaneSweepCache | None = None,
 ) -> MvsResult:
     """Geometrically filtered MVS depth of ``views[0]`` with ``views[1:]`` as its source views.
 
     ``stamps``: the views' keyframe stamps (cache keys); ``depth_range``: (near, far) of every sweep
     (m); ``probe_range``: the range whose geometric mean is the depth at which a neighbour's own
     source views (among ``views``) are chosen, default ``depth_range``. The reference is always
-    swept (its cached depth, if any, is replaced; its plane sweep is taken from ``sweeps`` when
-    that has one of the same sources and range, and kept there); a neighbour is swept only when
-    ``cache`` lacks it (whole, for the cache; else over :func:`guided_roi` with
-    ``options.neighbour_roi``), from its plane sweep in ``sweeps`` when that has one (see
-    :func:`own_plane_sweeps`).
+    swept (its cached depth, if any, is replaced); a neighbour is swept only when ``cache`` lacks it
+    (whole, for the cache; else over :func:`guided_roi` with ``options.neighbour_roi``), several
+    at once (the costliest first).
     The result is the reference's :class:`~ibr_ros.core.depth.mvs.MvsResult` after
     :func:`~ibr_ros.core.depth.mvs.geometric_filter` against every neighbour; ``neighbours`` index
     ``views``.
@@ -226,19 +141,15 @@ def job_depth(
     if len(views) < 2:
         raise ValueError('job_depth needs the reference view and at least one neighbour')
     ref, nbrs = views[0], list(views[1:])
-    key = (tuple(int(s) for s in stamps[1:]), _range(depth_range))
     r = mvs_depth(
         ref.rgb, ref.camera, ref.t_wc, [v.rgb for v in nbrs], [v.camera for v in nbrs],
         np.stack([v.t_wc for v in nbrs]), depth_range=depth_range, options=options,
-        plane_sweep=sweeps.sweep(stamps[0], key) if sweeps is not None else None,
     )  # fmt: skip
     r = replace(r, neighbours=tuple(k + 1 for k in r.neighbours))
     if r.reason:
         return r
     if cache is not None:
         cache.put(stamps[0], r.photometric_depth)
-    if sweeps is not None and r.plane_sweep is not None:
-        sweeps.put(stamps[0], (key, r.plane_sweep))
     poses = np.stack([v.t_wc for v in views])
     cams = [v.camera for v in views]
     depths: list[NDArray[np.float32]] = [r.photometric_depth]
@@ -253,14 +164,16 @@ def job_depth(
         if d is None:
             d = _photometric(
                 k, views, poses, cams, depth_range, probe_range or depth_range, options, guided,
-                rois.get(k), stamps[k], sweeps,
+                rois.get(k),
             )  # fmt: skip
             if cache is not None:
                 cache.put(stamps[k], d)
         return d
 
     # the costliest first, so that the last ones to finish are the cheap ones
-    order = sorted(ks, key=lambda k: -_sweep_cost(cams[k], rois.get(k), depth_range, r.n_planes))
+    order = sorted(
+        ks, key=lambda k: -_sweep_cost(cams[k], guided, rois.get(k), depth_range, r.n_planes, options)
+    )
     swept = dict(zip(order, _map_shared(neighbour, order), strict=True))
     depths += [swept[k] for k in ks]
     # Checked against its kept sources and every neighbour with a depth (only the reference is filtered).
@@ -275,34 +188,61 @@ def job_depth(
     return replace(r, depth=d0, confidence=conf, n_consistent=counts[0])
 
 
-def _map_shared(fn: Callable[[int], T], items: Sequence[int]) -> list[T]:
+_T = TypeVar('_T')
+
+
+def _map_shared(fn: Callable[[int], _T], items: Sequence[int]) -> list[_T]:
     """``[fn(i) for i in items]``, several at once: the caller's numba threads are shared out among
     up to as many Python threads (each item then runs kernels on fewer threads, and its Python and
-    OpenCV steps overlap the others' kernels). Same results as one at a time."""
+    OpenCV steps overlap the others' kernels); one at a time when numba's threading layer is not
+    thread-safe. Same results as one at a time."""
     total = numba.get_num_threads()
     workers = min(total, len(items))
-    if workers <= 1:
+    if workers <= 1 or _threading_layer() not in _THREADSAFE_LAYERS:
         return [fn(i) for i in items]
     per = max(1, total // workers)
 
-    def run(i: int) -> T:
+    def run(i: int) -> _T:
         numba.set_num_threads(per)
         return fn(i)
 
-    with ThreadPoolExecutor(workers, thread_name_prefix='mvs') as pool:
+    pool = ThreadPoolExecutor(workers, thread_name_prefix='mvs')
+    try:
         return list(pool.map(run, items))
+    finally:  # on an error or Ctrl-C: the queued ones never start, the running ones finish
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+#: numba threading layers whose parallel kernels several Python threads may call at once (the
+#: 'workqueue' fallback, without OpenMP or TBB, aborts the process instead).
+_THREADSAFE_LAYERS = ('omp', 'tbb')
+
+
+def _threading_layer() -> str:
+    """numba's threading layer, '' before any parallel kernel ran (it is chosen then)."""
+    try:
+        return str(numba.threading_layer())
+    except ValueError:
+        return ''
 
 
 def _sweep_cost(
-    cam: PinholeCamera, roi: Roi | None, depth_range: tuple[float, float], n_planes: int
+    cam: PinholeCamera,
+    guided: bool,
+    roi: Roi | None,
+    depth_range: tuple[float, float],
+    n_planes: int,
+    o: MvsOptions,
 ) -> float:
-    """About the work of a neighbour's sweep (pixel x hypothesis, the full-resolution steps' 19 per
-    pixel against the plane sweep's ``n_planes`` per 4 pixels, as many of them as ``roi`` keeps)."""
+    """About the work of a neighbour's sweep in pixels x hypotheses: at full resolution the
+    propagation candidates, refinement and surface steps per pixel, at the sweep scale the planes
+    (``n_planes``, those of ``roi``'s window), over ``roi``'s box (0 when ``guided`` without one)."""
+    fine = 7 + 2 * o.refine_steps + 1 + o.surface_passes * (2 * o.surface_steps + 1)
     if roi is None:
-        return cam.width * cam.height * (19 + n_planes / 4)
+        return 0.0 if guided else cam.width * cam.height * (fine + n_planes * o.sweep_scale**2)
     (x0, y0, x1, y1), (near, far) = roi
-    share = (1 / near - 1 / far) / (1 / depth_range[0] - 1 / depth_range[1])
-    return (x1 - x0) * (y1 - y0) * (19 + min(1.0, share) * n_planes / 4)
+    share = min(1.0, (1 / near - 1 / far) / (1 / depth_range[0] - 1 / depth_range[1]))
+    return (x1 - x0) * (y1 - y0) * (fine + share * n_planes * o.sweep_scale**2)
 
 
 def _photometric(
@@ -315,15 +255,12 @@ def _photometric(
     options: MvsOptions,
     guided: bool = False,
     roi: Roi | None = None,
-    stamp: int = 0,
-    sweeps: PlaneSweepCache | None = None,
 ) -> NDArray[np.float32]:
     """Photometric depth of ``views[k]`` from its own pick among the other ``views`` (zeros if none).
 
     With ``options.neighbour_sources`` n > 0 the sources are the reference ``views[0]`` and the
     n - 1 best others; ``guided``: only the box and the planes of ``roi`` (:func:`guided_roi` of the
     reference's photometric depth) are swept, zeros elsewhere (everywhere when ``roi`` is None).
-    When ``sweeps`` has the plane sweep of ``stamp`` (the view's), only steps 2-3 run, in the box.
     """
     v = views[k]
     out = np.zeros((v.camera.height, v.camera.width), np.float32)
@@ -333,24 +270,14 @@ def _photometric(
     if not src:
         return out
     srcs = ([views[j].rgb for j in src], [cams[j] for j in src], poses[src])
-    ps = sweeps.sweep(stamp) if sweeps is not None else None
     if guided and roi is None:  # nothing of the reference projects into it
         return out
-    if ps is not None:  # steps 2-3 of its own sweep, in the box
-        box = roi[0] if roi is not None else None
-        return mvs_depth(
-            v.rgb, v.camera, v.t_wc, *srcs, options=options, plane_sweep=ps, box=box
-        ).photometric_depth
     rgb, cam, window = np.asarray(v.rgb), v.camera, None
     x0 = y0 = 0
     if roi is not None:
         (x0, y0, x1, y1), window = roi
         if (x0, y0, x1, y1) != (0, 0, cam.width, cam.height):
-            rgb = np.ascontiguousarray(rgb[y0:y1, x0:x1])
-            kk = cam.k.copy()
-            kk[0, 2] -= x0
-            kk[1, 2] -= y0
-            cam = PinholeCamera(x1 - x0, y1 - y0, kk)
+            rgb, cam = np.ascontiguousarray(rgb[y0:y1, x0:x1]), cam.cropped(x0, y0, x1, y1)
     r = mvs_depth(rgb, cam, v.t_wc, *srcs, depth_range=depth_range, options=options, sweep_window=window)
     out[y0 : y0 + cam.height, x0 : x0 + cam.width] = r.photometric_depth  # zero when it failed
     return out
@@ -362,10 +289,10 @@ ROI_MARGIN_PX = 24
 #: Relative slack of :func:`guided_roi`'s depth window (the geometric filter allows 1 %).
 ROI_DEPTH_SLACK = 0.02
 #: Support of :func:`guided_roi`'s depth window: its ends are the nearest and farthest 1 % depth
-#: bins into which at least this many reference pixels (full resolution) project. A surface (a tree
-#: top, a roof) fills its bins; the sparse photometric outliers of the sweep do not, and without
-#: this support they stretch the window over the whole depth range.
-ROI_MIN_SUPPORT_PX = 100
+#: bins into which at least this share of the reference's pixels project (about 100 pixels at
+#: 1000x750). A surface (a tree top, a roof) fills its bins; the sparse photometric outliers of the
+#: sweep do not, and without this support they stretch the window over the whole depth range.
+ROI_MIN_SUPPORT = 1.3e-4
 #: About as many reference pixels as :func:`guided_roi` projects (a lattice of them).
 _ROI_SAMPLES = 50_000
 
@@ -385,7 +312,7 @@ def guided_roi(
     """Where the view ``cam`` at ``pose`` can confirm the reference's depth ``ref_depth`` (HxW
     metres, 0 = unknown): the pixel box ``(x0, y0, x1, y1)`` (end exclusive, even) of the known
     reference pixels that project into it, grown by ``margin`` px, and the (near, far) z-depths (m)
-    they have there (the extreme ones with :data:`ROI_MIN_SUPPORT_PX` support), widened by
+    they have there (the extreme ones with :data:`ROI_MIN_SUPPORT` support), widened by
     :data:`ROI_DEPTH_SLACK`. None when none projects into it.
     """
     step = max(1, math.isqrt(ref_depth.size // _ROI_SAMPLES))  # every step-th pixel of every step-th row
@@ -404,7 +331,7 @@ def guided_roi(
     x0, y0 = (max(0, int(c) // 2 * 2) for c in lo)
     x1 = min(cam.width, -(-int(hi[0]) // 2) * 2)
     y1 = min(cam.height, -(-int(hi[1]) // 2) * 2)
-    near, far = _supported_extremes(z, math.ceil(ROI_MIN_SUPPORT_PX / step**2))
+    near, far = _supported_extremes(z, math.ceil(ROI_MIN_SUPPORT * ref_depth.size / step**2))
     return (x0, y0, x1, y1), (near * (1 - ROI_DEPTH_SLACK), far * (1 + ROI_DEPTH_SLACK))
 
 

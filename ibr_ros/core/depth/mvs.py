@@ -74,14 +74,12 @@ __all__ = [
     'MvsOptions',
     'MvsResult',
     'MvsView',
-    'PlaneSweep',
     'check_camera',
     'compute_depth_maps',
     'depth_range_from_points',
     'geometric_filter',
     'in_view_pixels',
     'mvs_depth',
-    'plane_sweep',
     'probe_points',
     'select_neighbours',
 ]
@@ -97,9 +95,9 @@ REASON_NO_DEPTH_RANGE = 'no_depth_range'
 _STRIP_ROWS = 32  # rows per parallel work item of _sweep
 #: Grey level subtracted from the images the sweep kernels see: their float32 box sums stay small.
 _GREY_CENTRE = 128.0
-#: Source windows with a variance below this (grey levels^2) score 0 in the sweep kernels: no
-#: texture to correlate (and float32 box sums cannot resolve it).
-_MIN_SOURCE_VAR = 0.05
+#: Windows (reference or source) with a variance below this (grey levels^2) score 0 in the sweep
+#: kernels: no texture to correlate (and float32 box sums cannot resolve it).
+_MIN_WINDOW_VAR = 0.05
 
 #: Pixel lattice (per side) of :func:`select_neighbours`' probe points without sparse points.
 PROBE_GRID = 9
@@ -224,27 +222,6 @@ class MvsOptions:
 
 
 @dataclass(frozen=True, eq=False)
-class PlaneSweep:
-    """Step 1 of :func:`mvs_depth` for one reference view: the plane sweep that steps 2-3 refine,
-    with these or other source views (:func:`mvs_depth`'s ``plane_sweep``).
-
-    ``rho``: float32 inverse z-depth (1/m) of each pixel's winning plane at the sweep scale, 0 where
-    nothing scored; ``rejected``: bool, the same pixels' ambiguous or out-of-range winners;
-    ``step``: inverse depth between planes (1/m); ``n_planes``: planes of the whole sweep; ``far``:
-    its far end (m); ``size``: the view's (width, height) in pixels; ``propagated``: the inverse
-    depth after propagation at the sweep scale (``propagate_at_sweep_scale``), else None.
-    """
-
-    rho: NDArray[np.float32]
-    rejected: NDArray[np.bool_]
-    step: float
-    n_planes: int
-    far: float
-    size: tuple[int, int]
-    propagated: NDArray[np.float32] | None = None
-
-
-@dataclass(frozen=True, eq=False)
 class MvsResult:
     """Depth of one reference view.
 
@@ -253,8 +230,7 @@ class MvsResult:
     (0 before :func:`geometric_filter`); ``photometric_depth``: the depth before the geometric
     filter; ``neighbours``: the source views used (indices into the caller's list); ``reason``: ''
     or why the depth is all zero (``REASON_*``); ``depth_range``: the (near, far) swept, metres;
-    ``n_planes``: the number of planes swept (0 when none were); ``plane_sweep``: step 1 of the
-    sweep (None when none ran).
+    ``n_planes``: the number of planes swept (0 when none were).
     """
 
     depth: NDArray[np.float32]
@@ -265,7 +241,6 @@ class MvsResult:
     reason: str = ''
     depth_range: tuple[float, float] = (0.0, 0.0)
     n_planes: int = 0
-    plane_sweep: PlaneSweep | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -383,12 +358,13 @@ def _warp_rows(src, hs, ws, a, b, base, off, ya, yb, out, valid, y0, y1):
 def _zncc_score(h0, h1, h2, inv, m, v, ok):
     """ZNCC (float32, clamped to [-1, 1]) of one window from its source sums ``h0``, ``h1``, ``h2``
     (sum, sum of squares, sum of products with the reference), 1 / its area, the reference mean
-    ``m`` and variance ``v``; 0 where the source window's variance is below ``_MIN_SOURCE_VAR``."""
+    ``m`` and variance ``v``; 0 where either window's variance is below ``_MIN_WINDOW_VAR``."""
     f32 = np.float32
     ms = h0 * inv
     vs = h1 * inv - ms * ms
     z = (h2 * inv - m * ms) / math.sqrt(max(v * vs, f32(1e-6)))
-    z = min(max(z, f32(-1.0)), f32(1.0)) if vs > f32(_MIN_SOURCE_VAR) else f32(0.0)
+    flat = (vs <= f32(_MIN_WINDOW_VAR)) | (v <= f32(_MIN_WINDOW_VAR))
+    z = f32(0.0) if flat else min(max(z, f32(-1.0)), f32(1.0))
     return z if ok else f32(-1.0)
 
 
@@ -464,9 +440,9 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
                 a2 = c2[x] + c2[x + 1] + c2[x + 2] + c2[x + 3] + c2[x + 4] + c2[x + 5] + c2[x + 6]
                 zrow[x] = _zncc_score(a0, a1, a2, inv_w[x] * inv_rows, mrow[x], vrow[x], vld[x])
         else:
-            s0 = f32(0.0)
-            s1 = f32(0.0)
-            s2 = f32(0.0)
+            s0 = 0.0  # float64: serial over the whole row, they would drift in float32
+            s1 = 0.0
+            s2 = 0.0
             for x in range(2 * r):
                 s0 += c0[x]
                 s1 += c1[x]
@@ -475,9 +451,9 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
                 s0 += c0[x + 2 * r]
                 s1 += c1[x + 2 * r]
                 s2 += c2[x + 2 * r]
-                h0[x] = s0
-                h1[x] = s1
-                h2[x] = s2
+                h0[x] = f32(s0)
+                h1[x] = f32(s1)
+                h2[x] = f32(s2)
                 s0 -= c0[x]
                 s1 -= c1[x]
                 s2 -= c2[x]
@@ -875,15 +851,29 @@ def _scaled_stack(ref, ref_cam: PinholeCamera, t_wr, greys, cams, t_ws, sc: floa
     return _Stack(ref_s, cam_s, t_wr, greys_s, cams_s, t_ws)
 
 
+@dataclass(frozen=True, eq=False)
+class _PlaneSweep:
+    """Step 1's result: the winning plane's inverse depth (1/m, 0 where nothing scored) and the
+    rejected pixels at the sweep scale, the inverse depth from one plane to the next (negative:
+    near to far), the number of planes, the far end (m) and, with ``propagate_at_sweep_scale``, the
+    inverse depth after propagation at the sweep scale."""
+
+    rho: NDArray[np.float32]
+    rejected: NDArray[np.bool_]
+    step: float
+    n_planes: int
+    far: float
+    propagated: NDArray[np.float32] | None = None
+
+
 def _plane_sweep(
     ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None
-) -> PlaneSweep | str:
-    """Step 1 of the module docstring on checked grey images: the :class:`PlaneSweep` or a reason.
+) -> _PlaneSweep | str:
+    """Step 1 of the module docstring on checked grey images: its result or a reason.
 
     ``window``: (near, far) z-depths: only the planes of the sweep over (near, far) that lie within
     it, and 2 more each side, are swept (``coarse_band`` 0 only).
     """
-    H, W = ref.shape
     rho_near, rho_far = 1.0 / near, 1.0 / far
     s = o.sweep_scale
     coarse = _scaled_stack(ref, ref_cam, t_wr, greys, cams, t_ws, s)
@@ -926,7 +916,7 @@ def _plane_sweep(
     propagated = None
     if o.propagate_at_sweep_scale:
         propagated = _best_of(coarse, [rho_s, *_candidates(rho_s, s < 1, o.propagation_radius)], o.window, o)
-    return PlaneSweep(rho_s, bad_s, step, n_planes, far, (W, H), propagated)
+    return _PlaneSweep(rho_s, bad_s, step, n_planes, far, propagated)
 
 
 def _best_of(stack: _Stack, maps: list[NDArray], win: int, o: MvsOptions) -> NDArray[np.float32]:
@@ -939,28 +929,21 @@ def _best_of(stack: _Stack, maps: list[NDArray], win: int, o: MvsOptions) -> NDA
 
 
 def _sweep_and_refine(
-    ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None,
-    plane_sweep: PlaneSweep | None = None, box: tuple[int, int, int, int] | None = None,
-):  # fmt: skip
-    """Steps 1-3 of the module docstring on checked grey images: (depth, score, plane sweep) or a
-    reason. ``plane_sweep``: step 1's result (of any sources) instead of sweeping; ``box``: (x0, y0,
-    x1, y1), steps 2-3 within this pixel box only (depth and score of the box's size).
+    ref, ref_cam, t_wr, greys, cams, t_ws, near: float, far: float, o: MvsOptions, window=None
+):
+    """Steps 1-3 of the module docstring on checked grey images: (depth, score, n_planes) or a reason.
+
+    ``window``: (near, far) z-depths: only the planes of the sweep over (near, far) that lie within
+    it, and 2 more each side, are swept (``coarse_band`` 0 only).
     """
-    ps = plane_sweep or _plane_sweep(ref, ref_cam, t_wr, greys, cams, t_ws, near, far, o, window)
+    ps = _plane_sweep(ref, ref_cam, t_wr, greys, cams, t_ws, near, far, o, window)
     if isinstance(ps, str):
         return ps
     H, W = ref.shape
-    x0, y0, x1, y1 = box or (0, 0, W, H)
     low = ps.rho.shape != (H, W)  # swept below full resolution
 
     def up(a: NDArray) -> NDArray:
-        return (cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if low else a)[y0:y1, x0:x1]
-
-    if box is not None:
-        kk = ref_cam.k.copy()
-        kk[0, 2] -= x0
-        kk[1, 2] -= y0
-        ref, ref_cam = np.ascontiguousarray(ref[y0:y1, x0:x1]), PinholeCamera(x1 - x0, y1 - y0, kk)
+        return cv2.resize(a, (W, H), interpolation=cv2.INTER_NEAREST) if low else a
 
     # 2. propagate (at sweep_scale, done in step 1, or full resolution), refine at full resolution
     fine = _Stack(ref, ref_cam, t_wr, greys, cams, t_ws)
@@ -989,7 +972,7 @@ def _sweep_and_refine(
         ker = np.ones((2 * o.edge_trim_px + 1,) * 2, np.uint8)
         bad |= cv2.erode(np.where(bad, 1e9, rho).astype(np.float32), ker) * o.edge_trim_ratio < rho
     depth = np.where(bad, 0.0, 1.0 / np.where(bad, 1.0, rho)).astype(np.float32)
-    return depth, np.where(bad, 0.0, score).astype(np.float32), ps
+    return depth, np.where(bad, 0.0, score).astype(np.float32), ps.n_planes
 
 
 # --------------------------------------------------------------------------------------------- public
@@ -1126,8 +1109,6 @@ def mvs_depth(
     points_w: ArrayLike | None = None,
     options: MvsOptions | None = None,
     sweep_window: tuple[float, float] | None = None,
-    plane_sweep: PlaneSweep | None = None,
-    box: tuple[int, int, int, int] | None = None,
 ) -> MvsResult:
     """Photometric depth of the reference view from its source views (see the module docstring).
 
@@ -1139,75 +1120,8 @@ def mvs_depth(
     far) z-depths (m): only the planes of the sweep over the depth range that lie within it (and 2
     more each side) are swept; pixels whose best plane is at its ends are rejected (out of the
     window). Ignored with ``coarse_band`` > 0.
-
-    ``plane_sweep``: the reference's step 1 from an earlier result (``MvsResult.plane_sweep``, with
-    any sources, the same ``options``): only steps 2-3 run, with these sources, over its depth range
-    (``depth_range`` and ``points_w`` are not used). ``box`` (x0, y0, x1, y1), pixels, end
-    exclusive: step 1 over the whole view, steps 2-3 only within the box (zeros elsewhere).
     """
     o = options or MvsOptions()
-    inp = _inputs(
-        ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_range, points_w, plane_sweep
-    )
-    if isinstance(inp, MvsResult):
-        return inp
-    ref, ref_cam, t_wr, greys, cams, t_ws, (near, far) = inp
-    box = None if box is None else _box(box, ref_cam)
-    if o.backend == 'colmap':
-        views = [MvsView(np.asarray(ref_rgb), ref_cam, t_wr)]
-        views += [MvsView(np.asarray(im), c, t) for im, c, t in zip(src_rgbs, cams, t_ws)]
-        r = _colmap_depth_maps(views, [list(range(1, len(cams) + 1))], (near, far), o)[0]
-        return replace(r, depth=r.photometric_depth, n_consistent=np.zeros(ref.shape, np.uint8))
-    keep = _overlapping(ref_cam, t_wr, cams, t_ws, near, far)
-    if not keep:
-        return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
-    args = (ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o)
-    # (only when used: bench/_mvs_baseline.py stands in an older _sweep_and_refine without them)
-    extra: dict[str, Any] = (
-        {} if plane_sweep is None and box is None else {'plane_sweep': plane_sweep, 'box': box}
-    )
-    out = _sweep_and_refine(*args, sweep_window, **extra)
-    if isinstance(out, str):
-        return _empty(ref.shape, out, keep, (near, far))
-    depth, conf, ps = out
-    if box is not None:  # the box's depth into the view's
-        full = np.zeros((2, *ref.shape), np.float32)
-        full[:, box[1] : box[3], box[0] : box[2]] = depth, conf
-        depth, conf = full
-    zero = np.zeros(ref.shape, np.uint8)
-    return MvsResult(depth, conf, zero, depth.copy(), tuple(keep), '', (near, far), ps.n_planes, ps)
-
-
-def plane_sweep(
-    ref_rgb: ArrayLike,
-    ref_cam: PinholeCamera,
-    ref_pose: ArrayLike,
-    src_rgbs: Sequence[ArrayLike],
-    src_cams: PinholeCamera | Sequence[PinholeCamera],
-    src_poses: ArrayLike,
-    *,
-    depth_range: tuple[float, float],
-    options: MvsOptions | None = None,
-) -> PlaneSweep | str:
-    """Step 1 of :func:`mvs_depth` alone (the same arguments): the reference's :class:`PlaneSweep`
-    over ``depth_range`` (near, far) metres, or the reason (``REASON_*``) why none could be made.
-    :func:`mvs_depth` with this sweep as its ``plane_sweep`` and the same sources gives the same
-    result as without it."""
-    o = options or MvsOptions()
-    inp = _inputs(ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_range, None, None)
-    if isinstance(inp, MvsResult):
-        return inp.reason
-    ref, ref_cam, t_wr, greys, cams, t_ws, (near, far) = inp
-    keep = _overlapping(ref_cam, t_wr, cams, t_ws, near, far)
-    if not keep:
-        return REASON_NO_OVERLAP
-    grey = [greys[i] for i in keep]
-    return _plane_sweep(ref, ref_cam, t_wr, grey, [cams[i] for i in keep], t_ws[keep], near, far, o)
-
-
-def _inputs(ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_range, points_w, plane_sweep):
-    """:func:`mvs_depth`'s images (grey), cameras and poses checked, and its (near, far) metres; or an
-    all-zero result with the reason there is nothing to sweep. Bad arguments raise ValueError."""
     ref_cam = check_camera('ref_cam', ref_cam)
     ref = _grey('ref_rgb', ref_rgb, ref_cam)
     t_wr = validate_pose(ref_pose, field='ref_pose')
@@ -1218,15 +1132,7 @@ def _inputs(ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_ran
     cams = _cameras('src_cams', src_cams, n)
     t_ws = _poses('src_poses', src_poses, n)
     greys = [_grey(f'src_rgbs[{i}]', im, c) for i, (im, c) in enumerate(zip(src_list, cams))]
-    if plane_sweep is not None:
-        if not isinstance(plane_sweep, PlaneSweep) or plane_sweep.size != (ref_cam.width, ref_cam.height):
-            got = getattr(plane_sweep, 'size', type(plane_sweep).__name__)
-            raise ValueError(
-                f'plane_sweep must be the PlaneSweep of a {ref_cam.width}x{ref_cam.height} view, got {got}'
-            )
-        far = plane_sweep.far
-        near = 1.0 / (1.0 / far - plane_sweep.step * (plane_sweep.n_planes - 1))
-    elif depth_range is not None:
+    if depth_range is not None:
         near, far = (float(v) for v in depth_range)
         if not (0 < near < far and math.isfinite(far)):
             raise ValueError(f'depth_range must be (near, far) with 0 < near < far < inf, got {depth_range}')
@@ -1239,26 +1145,25 @@ def _inputs(ref_rgb, ref_cam, ref_pose, src_rgbs, src_cams, src_poses, depth_ran
         raise ValueError('mvs_depth needs depth_range or points_w')
     if n == 0:
         return _empty(ref.shape, REASON_NO_SOURCES, (), (near, far))
-    return ref, ref_cam, t_wr, greys, cams, t_ws, (near, far)
-
-
-def _overlapping(
-    ref_cam: PinholeCamera, t_wr, cams: list[PinholeCamera], t_ws, near: float, far: float
-) -> list[int]:
-    """The sources that see some of the reference frustum between near and far."""
+    if o.backend == 'colmap':
+        views = [MvsView(np.asarray(ref_rgb), ref_cam, t_wr)]
+        views += [MvsView(np.asarray(im), c, t) for im, c, t in zip(src_list, cams, t_ws)]
+        r = _colmap_depth_maps(views, [list(range(1, n + 1))], (near, far), o)[0]
+        return replace(r, depth=r.photometric_depth, n_consistent=np.zeros(ref.shape, np.uint8))
+    # Sources that see some of the reference frustum between near and far.
     probes = np.concatenate([probe_points(ref_cam, t_wr, d, 7) for d in (near, math.sqrt(near * far), far)])
-    return [i for i in range(len(cams)) if _in_view(probes, cams[i], t_ws[i])[0].any()]
-
-
-def _box(box: object, cam: PinholeCamera) -> tuple[int, int, int, int]:
-    """``box`` as (x0, y0, x1, y1) ints within ``cam``'s image and not empty; else ValueError."""
-    try:
-        x0, y0, x1, y1 = (int(v) for v in box)  # type: ignore[attr-defined]
-    except (TypeError, ValueError):
-        raise ValueError(f'box must be (x0, y0, x1, y1), got {box!r}') from None
-    if not (0 <= x0 < x1 <= cam.width and 0 <= y0 < y1 <= cam.height):
-        raise ValueError(f'box must be (x0, y0, x1, y1) within {cam.width}x{cam.height}, got {box!r}')
-    return x0, y0, x1, y1
+    keep = [i for i in range(n) if _in_view(probes, cams[i], t_ws[i])[0].any()]
+    if not keep:
+        return _empty(ref.shape, REASON_NO_OVERLAP, (), (near, far))
+    out = _sweep_and_refine(
+        ref, ref_cam, t_wr, [greys[i] for i in keep], [cams[i] for i in keep], t_ws[keep], near, far, o,
+        sweep_window,
+    )  # fmt: skip
+    if isinstance(out, str):
+        return _empty(ref.shape, out, keep, (near, far))
+    depth, conf, n_planes = out
+    zero = np.zeros(ref.shape, np.uint8)
+    return MvsResult(depth, conf, zero, depth.copy(), tuple(keep), '', (near, far), n_planes)
 
 
 def geometric_filter(

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from ibr_ros.core.depth.confidence import ConfidenceConfig, depth_confidence
 from ibr_ros.core.depth.fusion import fuse_with_support
-from ibr_ros.core.depth.job_mvs import OwnJob, PhotometricCache, PlaneSweepCache, job_depth, own_plane_sweeps
+from ibr_ros.core.depth.job_mvs import PhotometricCache, job_depth
 from ibr_ros.core.depth.mono import GroundPlanePrior, MonoModelSpec, OnnxMonoDepth
 from ibr_ros.core.depth.mvs import MvsOptions, MvsResult, MvsView, compute_depth_maps
 from ibr_ros.core.depth.prune import prune_depth
@@ -340,17 +340,10 @@ class JobResult:
 
 
 def refine_job(
-    refiner: DepthRefiner,
-    job: RefineJob,
-    mvs: MvsOptions,
-    cache: PhotometricCache | None = None,
-    sweeps: PlaneSweepCache | None = None,
-    own_job: OwnJob | None = None,
+    refiner: DepthRefiner, job: RefineJob, mvs: MvsOptions, cache: PhotometricCache | None = None
 ) -> JobResult:
     """MVS of ``job`` (:func:`~ibr_ros.core.depth.job_mvs.job_depth` of its views over its depth
-    range, ``mvs`` options; neighbours' photometric depth from ``cache`` where it has them, plane
-    sweeps from ``sweeps``, made first over each neighbour's ``own_job`` where it lacks them:
-    :func:`~ibr_ros.core.depth.job_mvs.own_plane_sweeps`), then
+    range, ``mvs`` options; neighbours' photometric depth from ``cache`` where it has them), then
     :meth:`DepthRefiner.refine_from_mvs` of its keyframe.
 
     A :class:`RefineError` or a result without any known depth (:func:`known_depth`) is a failed
@@ -358,11 +351,7 @@ def refine_job(
     """
     n = len(job.neighbours)
     t0 = time.perf_counter()
-    if sweeps is not None and own_job is not None:
-        own_plane_sweeps(job.neighbours, sweeps, own_job, mvs)
-    m = job_depth(
-        job.views, job.stamps, job.depth_range, mvs, probe_range=job.probe_range, cache=cache, sweeps=sweeps
-    )
+    m = job_depth(job.views, job.stamps, job.depth_range, mvs, probe_range=job.probe_range, cache=cache)
     t1 = time.perf_counter()
     context = f'{n} neighbours, MVS {m.reason or "ok"}'
     try:

@@ -105,9 +105,7 @@ class ScheduleConfig:
     ``depth_range``: (near, far) in metres or None (automatic); ``scene_depth_m``: 0 = estimate.
     ``reuse_neighbour_depth``: the caller keeps a filled
     :class:`~ibr_ros.core.depth.job_mvs.PhotometricCache` for the flight
-    (:meth:`~ibr_ros.core.depth.job_mvs.PhotometricCache.for_flight`); ``reuse_plane_sweeps``: a
-    :class:`~ibr_ros.core.depth.job_mvs.PlaneSweepCache`, filled ahead of each job over
-    :meth:`RefineScheduler.job_of` (:func:`~ibr_ros.core.depth.refine.refine_job`).
+    (:meth:`~ibr_ros.core.depth.job_mvs.PhotometricCache.for_flight`).
     """
 
     num_workers: int = 1
@@ -115,7 +113,6 @@ class ScheduleConfig:
     min_neighbours: int = 2
     refine_again: bool = False
     reuse_neighbour_depth: bool = False
-    reuse_plane_sweeps: bool = False
     depth_range: tuple[float, float] | None = None
     scene_depth_m: float = 0.0
     near_ratio: float = 0.25
@@ -504,7 +501,18 @@ class RefineScheduler:
             else:
                 due = (n >= cfg.min_neighbours or (flush and n >= 1)) and n > kf.failed_with
             if due:
-                return self._job(kf, nbrs, rng, from_points, probe)
+                chosen = [self._kfs[s] for s in nbrs]
+                return RefineJob(
+                    kf.stamp,
+                    kf.view,
+                    nbrs,
+                    tuple(k.view for k in chosen),
+                    rng,
+                    again=bool(kf.used),
+                    plausible=rng if from_points else None,
+                    seeds_w=self._observed.get(kf.stamp),
+                    probe_range=probe,
+                )
             if flush and n == 0 and not kf.alone_warned:
                 kf.alone_warned = True
                 self._warnings.append(
@@ -512,35 +520,6 @@ class RefineScheduler:
                     'not refined yet'
                 )
         return None
-
-    def _job(
-        self, kf: _Keyframe, nbrs: tuple[int, ...], rng: tuple[float, float], from_points: bool,
-        probe: tuple[float, float],
-    ) -> RefineJob:  # fmt: skip
-        return RefineJob(
-            kf.stamp,
-            kf.view,
-            nbrs,
-            tuple(self._kfs[s].view for s in nbrs),
-            rng,
-            again=bool(kf.used),
-            plausible=rng if from_points else None,
-            seeds_w=self._observed.get(kf.stamp),
-            probe_range=probe,
-        )
-
-    def job_of(self, stamp_ns: int) -> RefineJob | None:
-        """The job keyframe ``stamp_ns`` would get now (its neighbours and depth range among the
-        keyframes added so far), whoever refines it and whether or not it is due; None when it is
-        unknown or has no neighbour. :func:`~ibr_ros.core.depth.job_mvs.own_plane_sweeps` sweeps a
-        neighbour over it. Raises ValueError as :meth:`next_job`."""
-        kf = self._kfs.get(stamp_ns)
-        if kf is None or len(self._order) < 2:
-            return None
-        self._check_views()
-        rng, from_points, probe = self._range(kf)
-        nbrs = self._neighbours(kf, probe)
-        return self._job(kf, nbrs, rng, from_points, probe) if nbrs else None
 
     def done(self, job: RefineJob) -> None:
         """Record a successful refinement of ``job`` (it is due again only with more neighbours)."""

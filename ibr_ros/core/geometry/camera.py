@@ -170,6 +170,18 @@ class PinholeCamera:
             roi=Roi(),
         )
 
+    def cropped(self, x0: int, y0: int, x1: int, y1: int) -> PinholeCamera:
+        """Camera for the pixel box ``x0 <= u < x1``, ``y0 <= v < y1`` of this camera's image (the
+        principal point shifted by ``(x0, y0)``); ValueError when the box is empty or outside."""
+        if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
+            raise CameraError(
+                f'crop box (x0, y0, x1, y1) = {(x0, y0, x1, y1)} must lie within {self.width}x{self.height}'
+            )
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])  # u' = u - x0, v' = v - y0
+        return replace(
+            self, width=x1 - x0, height=y1 - y0, k=shift @ self.k, p=shift @ self.projection, roi=Roi()
+        )
+
     # -- projection (undistorted pinhole, K only) ---------------------------------------------
     def project(self, points_c: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Project Nx3 optical-frame points; return (Nx2 pixels, N depths z in metres).

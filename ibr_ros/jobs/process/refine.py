@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ibr_ros.core.depth.job_mvs import PhotometricCache, PlaneSweepCache
+from ibr_ros.core.depth.job_mvs import PhotometricCache
 from ibr_ros.core.depth.mono import MonoModelError
 from ibr_ros.core.depth.mvs import MvsView
 from ibr_ros.core.depth.refine import DepthRefiner, refine_job
@@ -60,12 +60,6 @@ def refine_all(
     except MonoModelError as exc:
         raise UserError(f'depth_refiner mono_model/sky_model: {exc}') from exc
     photometric = PhotometricCache.for_flight(cfg.schedule.reuse_neighbour_depth)
-    sweeps = PlaneSweepCache.for_flight(cfg.schedule.reuse_plane_sweeps)
-
-    def own_job(stamp: int) -> tuple[list[MvsView], list[int], tuple[float, float]] | None:
-        job = scheduler.job_of(stamp)
-        return None if job is None else ([_loaded(v) for v in job.views], job.stamps, job.depth_range)
-
     keep = spill or (lambda a: a)
     failures: dict[int, str] = {}
     warnings: list[str] = []
@@ -87,7 +81,7 @@ def refine_all(
         kf = by_stamp[job.stamp]
         views = (_loaded(job.view), tuple(_loaded(v) for v in job.neighbour_views))
         job_in_memory = replace(job, view=views[0], neighbour_views=views[1])
-        result = refine_job(refiner, job_in_memory, cfg.schedule.mvs, photometric, sweeps, own_job)
+        result = refine_job(refiner, job_in_memory, cfg.schedule.mvs, photometric)
         kf.timings_s = dict(result.timings_s)
         if result.refined is None:
             scheduler.failed(job)

@@ -252,7 +252,7 @@ def _centred(ref: np.ndarray, srcs: np.ndarray, r: int) -> tuple[np.ndarray, ...
 
 def _zncc_truncated(ref: np.ndarray, src: np.ndarray, r: int) -> np.ndarray:
     """Windowed ZNCC by brute force (float64) over (2r+1)^2 boxes truncated at the image border;
-    flat windows (variance product <= 1e-6, or a source variance <= ``_MIN_SOURCE_VAR``) score 0."""
+    flat windows (variance product <= 1e-6, or a window variance <= ``_MIN_WINDOW_VAR``) score 0."""
     h, w = ref.shape
     out = np.zeros((h, w))
     for y in range(h):
@@ -261,7 +261,8 @@ def _zncc_truncated(ref: np.ndarray, src: np.ndarray, r: int) -> np.ndarray:
             b = src[max(0, y - r) : y + r + 1, max(0, x - r) : x + r + 1].astype(np.float64)
             cov = (a * b).mean() - a.mean() * b.mean()
             den = a.var() * b.var()
-            out[y, x] = cov / np.sqrt(den) if den > 1e-6 and b.var() > mvs._MIN_SOURCE_VAR else 0.0
+            flat = min(a.var(), b.var()) <= mvs._MIN_WINDOW_VAR
+            out[y, x] = cov / np.sqrt(den) if den > 1e-6 and not flat else 0.0
     return out
 
 
@@ -273,6 +274,7 @@ def test_sweep_kernel_scores_the_mean_of_the_best_sources(r, top_k):
     rng = np.random.default_rng(10 * r + top_k)
     h, w, n = 37, 45, 3
     ref = rng.uniform(0, 255, (h, w)).astype(np.float32)
+    ref[25:35, 28:40] = 100.0 + rng.normal(0, 0.1, (10, 12))  # about flat (variance 0.01): 0
     srcs = np.stack([ref * rng.uniform(-1, 1) + rng.normal(0, 60, (h, w)) for _ in range(n)])
     srcs = srcs.astype(np.float32)
     srcs[1, 10:20, 10:20] = 7.0  # a flat patch: those windows score 0
@@ -300,6 +302,30 @@ def test_sweep_kernel_scores_the_mean_of_the_best_sources(r, top_k):
     assert np.abs(best - want).max() < 1e-4
     assert (pos == 0).all()
     assert (second == -1).all()  # no hypothesis more than 2 planes away
+
+
+def test_sweep_kernel_running_sums_hold_across_a_wide_bright_row():
+    """Windows other than 7 px sum rows serially: over 1200 columns of bright, weakly textured
+    grey levels (variance ~4, the least min_std lets through) the ZNCC still matches brute force."""
+    rng = np.random.default_rng(5)
+    h, w, r = 12, 1200, 4
+    ref = (230.0 + rng.normal(0, 2.0, (h, w))).astype(np.float32)
+    src = (ref + rng.normal(0, 1.0, (h, w))).astype(np.float32)[None]
+    ref_c, mr, vr, src_c = _centred(ref, src, r)
+    _, best, _ = mvs._sweep(
+        ref_c, mr, vr, src_c, np.array([[h, w]], np.int64), np.eye(3)[None], np.zeros((1, 3)),
+        np.full((1, h, w), 0.1, np.float32), np.zeros(1, np.float32), r, 1, 8, False, 2,
+    )  # fmt: skip
+    ys, xs = np.mgrid[0:h, 0:w]
+    sx, sy = np.minimum(xs, np.float32(w - 1.001)), np.minimum(ys, np.float32(h - 1.001))
+    x0, y0 = sx.astype(int), sy.astype(int)
+    g = src[0]
+    fx, fy = sx - x0, sy - y0
+    warped = (1 - fy) * (g[y0, x0] + fx * (g[y0, x0 + 1] - g[y0, x0])) + fy * (
+        g[y0 + 1, x0] + fx * (g[y0 + 1, x0 + 1] - g[y0 + 1, x0])
+    )
+    want = _zncc_truncated(ref, warped, r)
+    assert np.abs(best - want).max() < 2e-3
 
 
 def test_sweep_kernel_with_a_base_per_hypothesis_scores_each_as_alone():

@@ -7,8 +7,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ibr_ros.core.depth import mvs as mvs_module
-from ibr_ros.core.depth.job_mvs import PlaneSweepCache
 from ibr_ros.core.depth.mvs import MvsOptions, compute_depth_maps
 from ibr_ros.core.depth.refine import DepthRefiner, RefineError, known_depth, refine_job
 from ibr_ros.core.depth.schedule import RefineScheduler, ScheduleConfig
@@ -18,16 +16,11 @@ OPTIONS = MvsOptions(max_neighbours=2, neighbour_roi=False)  # job_depth as comp
 
 
 @pytest.fixture(scope='module')
-def scheduler() -> RefineScheduler:
+def job():
     s = RefineScheduler(ScheduleConfig(min_neighbours=1, depth_range=(10.0, 60.0), mvs=OPTIONS))
     for i, v in enumerate(plane_views()):
         s.add(i + 1, v)
-    return s
-
-
-@pytest.fixture(scope='module')
-def job(scheduler):
-    job = scheduler.next_job(flush=True)
+    job = s.next_job(flush=True)
     assert job is not None
     return job
 
@@ -72,31 +65,3 @@ def test_a_failure_is_a_result_saying_why(job):
 def test_known_depth_needs_one_finite_positive_value():
     assert not known_depth(np.array([[np.nan, 0.0], [-1.0, np.inf]]))
     assert known_depth(np.array([[np.nan, 0.0], [2.0, np.inf]]))
-
-
-def test_the_neighbours_plane_sweeps_are_made_over_their_own_jobs_first(job, scheduler, monkeypatch):
-    """With a PlaneSweepCache and the scheduler's job_of, refine_job makes each neighbour's plane
-    sweep over its own job, then the job's reference sweep; a second run makes none."""
-    swept: list[tuple[int, int]] = []
-    real = mvs_module._plane_sweep
-    monkeypatch.setattr(
-        mvs_module, '_plane_sweep', lambda ref, *a, **k: swept.append(ref.shape) or real(ref, *a, **k)
-    )
-    asked: list[int] = []
-
-    def own_job(stamp: int):  # type: ignore[no-untyped-def]
-        asked.append(stamp)
-        j = scheduler.job_of(stamp)
-        return None if j is None else (j.views, j.stamps, j.depth_range)
-
-    sweeps = PlaneSweepCache.for_flight(True)
-    result = refine_job(DepthRefiner(), job, OPTIONS, sweeps=sweeps, own_job=own_job)
-    assert result.refined is not None
-    assert asked == list(job.neighbours)
-    assert len(swept) == len(job.neighbours) + 1
-    assert len(sweeps) == len(job.neighbours) + 1
-    swept.clear()
-    again = refine_job(DepthRefiner(), job, OPTIONS, sweeps=sweeps, own_job=own_job)
-    assert swept == []
-    np.testing.assert_array_equal(again.mvs.depth, result.mvs.depth)
-    assert (result.mvs.depth > 0).mean() > 0.5

@@ -296,32 +296,3 @@ def test_invalid_pose_is_refused_by_next_job():
     s.add(T0 + 1, MvsView(RGB, CAM, bad))
     with pytest.raises(ValueError, match=f'keyframe {T0 + 1} ns t_wc rotation is not orthonormal'):
         s.next_job()
-
-
-def test_job_of_is_the_job_a_keyframe_would_get_now_whoever_refines_it():
-    """job_of (a neighbour's own job, for its plane sweep) matches next_job for the same keyframe,
-    for another shard's keyframes and refined ones too; None for unknown or lonely keyframes."""
-    stamps = [T0 + k * 100_000_000 for k in range(6)]
-    s = sched(num_workers=2, worker_index=0, min_neighbours=1)
-    assert s.job_of(stamps[0]) is None  # fewer than 2 keyframes
-    for k, st in enumerate(stamps):
-        s.add(st, orbit_view(5 * k))
-    s.add(T0 - 1, orbit_view(180.0))  # sees none of the others
-    assert s.job_of(T0 - 1) is None
-    assert s.job_of(T0 - 2) is None
-    while (job := s.next_job()) is not None:
-        other = s.job_of(job.stamp)
-        assert other is not None
-        assert (other.stamp, other.neighbours, other.depth_range) == (
-            job.stamp,
-            job.neighbours,
-            job.depth_range,
-        )
-        assert other.views[1:] == job.views[1:]
-        s.done(job)
-    theirs = [st for st in stamps if not s.is_mine(st)]
-    assert theirs
-    for st in theirs + stamps:  # another shard's keyframes, and the refined ones, have jobs too
-        j = s.job_of(st)
-        assert j is not None
-        assert j.neighbours

@@ -136,3 +136,18 @@ def test_rotation_angle_and_similarity_helpers() -> None:
         similarity_from_orientations(np.zeros((3, 3)), np.zeros((3, 3)), *[np.stack([np.eye(3)] * 3)] * 2)
         is None
     )
+
+
+def test_a_cropped_camera_sees_the_box_of_the_image():
+    cam = PinholeCamera.from_fov(640, 480, 70.0)
+    box = cam.cropped(100, 50, 420, 290)
+    assert (box.width, box.height) == (320, 240)
+    pts = np.array([[1.0, -0.5, 6.0], [-0.3, 0.2, 4.0]])
+    uv, z = cam.project(pts)
+    uv_box, z_box = box.project(pts)
+    np.testing.assert_allclose(uv_box, uv - [100, 50])
+    np.testing.assert_allclose(z_box, z)
+    np.testing.assert_allclose(box.projection[:, :3], box.k)
+    for bad in ((0, 0, 641, 10), (10, 10, 10, 20), (-1, 0, 5, 5)):
+        with pytest.raises(CameraError, match='crop box'):
+            cam.cropped(*bad)
