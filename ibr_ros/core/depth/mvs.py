@@ -377,7 +377,7 @@ def _zncc_rows(ref, mr, vr, s, valid, r, ya, y0, y1, zrow, tops):
     error over a strip; one pass per row adds the entering and subtracts the leaving row) over
     (2r+1)^2 boxes truncated at the image border, the same boxes as :func:`_box_stats`; ``ref``,
     ``s`` and the reference means ``mr`` centred, ``mr`` and ``vr`` float32. Invalid centres score
-    -1, flat source windows 0. The column sums have r zero columns each side (the
+    -1, flat windows 0. The column sums have r zero columns each side (the
     loops index the views ``d*`` by x: an offset index kept them from vectorising); for r = 3
     (7-pixel windows) the row sums are 7 direct taps in the loop that computes the scores
     (vectorised), otherwise serial running sums into row buffers. ``zrow``: float32, W scores.
