@@ -855,14 +855,13 @@ def _scaled_stack(ref, ref_cam: PinholeCamera, t_wr, greys, cams, t_ws, sc: floa
 class _PlaneSweep:
     """Step 1's result: the winning plane's inverse depth (1/m, 0 where nothing scored) and the
     rejected pixels at the sweep scale, the inverse depth from one plane to the next (negative:
-    near to far), the number of planes, the far end (m) and, with ``propagate_at_sweep_scale``, the
+    near to far), the number of planes and, with ``propagate_at_sweep_scale``, the
     inverse depth after propagation at the sweep scale."""
 
     rho: NDArray[np.float32]
     rejected: NDArray[np.bool_]
     step: float
     n_planes: int
-    far: float
     propagated: NDArray[np.float32] | None = None
 
 
@@ -916,7 +915,7 @@ def _plane_sweep(
     propagated = None
     if o.propagate_at_sweep_scale:
         propagated = _best_of(coarse, [rho_s, *_candidates(rho_s, s < 1, o.propagation_radius)], o.window, o)
-    return _PlaneSweep(rho_s, bad_s, step, n_planes, far, propagated)
+    return _PlaneSweep(rho_s, bad_s, step, n_planes, propagated)
 
 
 def _best_of(stack: _Stack, maps: list[NDArray], win: int, o: MvsOptions) -> NDArray[np.float32]:
@@ -966,7 +965,7 @@ def _sweep_and_refine(
         rho = base + (pos - k) * np.float32(0.25 * half)
 
     # 3. reject
-    bad = up(ps.rejected.astype(np.uint8)).astype(bool) | ~valid | ~(rho > 0.999 / ps.far)
+    bad = up(ps.rejected.astype(np.uint8)).astype(bool) | ~valid | ~(rho > 0.999 / far)
     bad |= (score < o.min_zncc) | (fine.box_stats(o.refine_window)[1] < o.min_std**2)
     if o.edge_trim_px > 0:
         ker = np.ones((2 * o.edge_trim_px + 1,) * 2, np.uint8)
